@@ -1,0 +1,3 @@
+from penfree.cli import main
+
+main()

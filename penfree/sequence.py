@@ -1,0 +1,192 @@
+"""The validated in-memory sequence that every reader produces (SPEC section 2)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from .errors import InputError
+
+
+@dataclass
+class Obstacle:
+    """A kinematic obstacle: its own positions per frame and its topology.
+
+    Attributes
+    ----------
+    name : str
+    positions : (T, M, 3) or (M, 3) float
+        Static obstacles may give one frame; `frame(s)` hides the difference.
+    faces : (K, 3) int64 or None
+    edges : (K, 2) int64 or None
+    """
+
+    name: str
+    positions: np.ndarray
+    faces: Optional[np.ndarray] = None
+    edges: Optional[np.ndarray] = None
+
+    def frame(self, s: int) -> np.ndarray:
+        """Positions `(M, 3)` at frame `s` (the same array for a static obstacle)."""
+        if self.positions.ndim == 2:
+            return self.positions
+        return self.positions[s]
+
+
+@dataclass
+class Sequence:
+    """`T >= 2` frames of `N` vertices plus fixed topology.
+
+    Attributes
+    ----------
+    positions : (T, N, 3) float32 or float64
+        Kept in the input dtype; every computation converts to float64.
+    edges : (E, 2) int64 or None
+        Segment topology (rods, yarn, hair, cables).
+    faces : (F, 3) int64 or None
+        Triangle topology (cloth, shells).
+    weights : (N,) float64 or None
+        Non-negative per-vertex weights of the fit (e.g. masses).
+    components : (N,) int64 or None
+        Object labels.
+    thickness : float
+        Contact distance; 0 when the file gives none.
+    dt : float or None
+    source : str or None
+        Free text from the file (simulator, scene).
+    obstacles : list of Obstacle
+    origin : str
+        Where the sequence came from, for error messages (a path).
+    attrs : dict
+        Other file attributes, carried through.
+    """
+
+    positions: np.ndarray
+    edges: Optional[np.ndarray] = None
+    faces: Optional[np.ndarray] = None
+    weights: Optional[np.ndarray] = None
+    components: Optional[np.ndarray] = None
+    thickness: float = 0.0
+    dt: Optional[float] = None
+    source: Optional[str] = None
+    obstacles: list = field(default_factory=list)
+    origin: str = "<memory>"
+    attrs: dict = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.positions.shape[0])
+
+    @property
+    def n_vertices(self) -> int:
+        return int(self.positions.shape[1])
+
+    @property
+    def dtype(self) -> np.dtype:
+        return self.positions.dtype
+
+    @property
+    def kind(self) -> str:
+        """``"triangles"``, ``"segments"`` or ``"points"`` (no topology)."""
+        if self.faces is not None and len(self.faces):
+            return "triangles"
+        if self.edges is not None and len(self.edges):
+            return "segments"
+        return "points"
+
+    def validate(self) -> "Sequence":
+        """Check shapes, dtypes, finiteness and index ranges; normalise dtypes in place.
+
+        Raises
+        ------
+        InputError
+            One line naming ``origin``, the dataset and what was expected.
+        """
+        where = self.origin
+        pos = np.asarray(self.positions)
+        if pos.ndim != 3 or pos.shape[2] != 3:
+            raise InputError(f"positions must be (T, N, 3); got {pos.shape} in {where}:/positions")
+        if pos.dtype not in (np.float32, np.float64):
+            if not np.issubdtype(pos.dtype, np.number):
+                raise InputError(f"positions must be float32 or float64; got {pos.dtype} in {where}:/positions")
+            pos = pos.astype(np.float64)
+        if pos.shape[0] < 2:
+            raise InputError(f"positions must hold at least 2 frames; got {pos.shape[0]} in {where}:/positions")
+        if pos.shape[1] < 1:
+            raise InputError(f"positions must hold at least 1 vertex; got 0 in {where}:/positions")
+        bad = ~np.isfinite(pos).all(axis=(1, 2))
+        if bad.any():
+            s = int(np.flatnonzero(bad)[0])
+            raise InputError(f"positions must be finite; frame {s} holds NaN or Inf in {where}:/positions")
+        self.positions = pos
+        n = pos.shape[1]
+        self.edges = _check_topology(self.edges, 2, n, where, "edges")
+        self.faces = _check_topology(self.faces, 3, n, where, "faces")
+        if self.weights is not None:
+            w = np.asarray(self.weights, dtype=np.float64)
+            if w.shape != (n,):
+                raise InputError(f"weights must be ({n},) to match positions; got {w.shape} in {where}:/weights")
+            if not np.isfinite(w).all() or (w < 0).any():
+                raise InputError(f"weights must be finite and >= 0; got min {np.nanmin(w):g} in {where}:/weights")
+            if not w.sum() > 0:
+                raise InputError(f"weights must not all be zero in {where}:/weights")
+            self.weights = w
+        if self.components is not None:
+            c = np.asarray(self.components)
+            if c.shape != (n,) or not np.issubdtype(c.dtype, np.integer):
+                raise InputError(
+                    f"components must be ({n},) integer to match positions; got {c.shape} {c.dtype} in {where}:/components"
+                )
+            self.components = c.astype(np.int64)
+        t = float(self.thickness or 0.0)
+        if not np.isfinite(t) or t < 0:
+            raise InputError(f"thickness must be finite and >= 0; got {self.thickness!r} in {where}:@thickness")
+        self.thickness = t
+        for ob in self.obstacles:
+            _check_obstacle(ob, pos.shape[0], where)
+        return self
+
+
+def _check_topology(arr, k, n, where, name):
+    if arr is None:
+        return None
+    a = np.asarray(arr)
+    if a.size == 0:
+        return np.zeros((0, k), dtype=np.int64)
+    if a.ndim != 2 or a.shape[1] != k:
+        raise InputError(f"{name} must be (M, {k}); got {a.shape} in {where}:/{name}")
+    if not np.issubdtype(a.dtype, np.integer):
+        if np.issubdtype(a.dtype, np.floating) and np.all(np.isfinite(a)) and np.all(a == np.round(a)):
+            a = a.astype(np.int64)
+        else:
+            raise InputError(f"{name} must be integer indices; got {a.dtype} in {where}:/{name}")
+    a = a.astype(np.int64)
+    lo, hi = int(a.min()), int(a.max())
+    if lo < 0 or hi >= n:
+        bad = lo if lo < 0 else hi
+        raise InputError(f"{name} indices must be in [0, {n - 1}] for {n} vertices; found {bad} in {where}:/{name}")
+    if (a[:, :, None] == a[:, None, :])[:, ~np.eye(k, dtype=bool)].any():
+        row = int(np.flatnonzero((a[:, :, None] == a[:, None, :])[:, ~np.eye(k, dtype=bool)].any(axis=1))[0])
+        raise InputError(f"{name} must not repeat a vertex within a row; row {row} is {a[row].tolist()} in {where}:/{name}")
+    return np.ascontiguousarray(a)
+
+
+def _check_obstacle(ob: Obstacle, T: int, where: str):
+    ds = f"{where}:/obstacles/{ob.name}"
+    p = np.asarray(ob.positions)
+    if p.ndim == 2 and p.shape[1] == 3:
+        pass
+    elif p.ndim == 3 and p.shape[2] == 3 and p.shape[0] == T:
+        pass
+    else:
+        raise InputError(f"obstacle positions must be ({T}, M, 3) or (M, 3); got {p.shape} in {ds}/positions")
+    if not np.isfinite(p).all():
+        raise InputError(f"obstacle positions must be finite in {ds}/positions")
+    ob.positions = p.astype(np.float64)
+    m = p.shape[-2]
+    ob.faces = _check_topology(ob.faces, 3, m, where, f"obstacles/{ob.name}/faces")
+    ob.edges = _check_topology(ob.edges, 2, m, where, f"obstacles/{ob.name}/edges")
+    if (ob.faces is None or not len(ob.faces)) and (ob.edges is None or not len(ob.edges)):
+        raise InputError(f"obstacle needs faces or edges in {ds}")
