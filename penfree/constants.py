@@ -29,6 +29,11 @@ PROJECTIONS = ("none", "svd", "sym", "auto")
 #: recipe clamps into [margin, S_MAX]); per-frame motion never needs more.
 SVD_SMAX = 10.0
 
+#: With a thickness h, the margin is h / d0 (d0 the smallest start gap). d0 is only
+#: searched within this many thicknesses: beyond it the margin h / radius (<= 0.1)
+#: is already sufficient and barely restricts per-frame motion (arccos(0.1) = 84 deg).
+MARGIN_GAP_RADIUS_FACTOR = 10.0
+
 # --- verification (SPEC section 6) -------------------------------------------
 #: Pairs listed per step by default (``verify --max-pairs``).
 DEFAULT_MAX_PAIRS = 10

@@ -1,0 +1,213 @@
+"""The sequence driver: runs the per-step stages over a whole recording.
+
+`deform_sequence` wires fit, projection and certificate (through `fit_step`), the
+start-gap query that turns a thickness into a certificate margin, and the residual
+summaries against the simulator's next frame. It returns plain arrays in the layout of
+SPEC section 8; writing them is the formats layer's job.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..constants import MARGIN_GAP_RADIUS_FACTOR
+from ..errors import CertificateError, InputError
+from .certificate import certify
+from .step import fit_step
+
+
+@dataclass
+class DeformOutput:
+    """Per-step arrays (keys as in SPEC section 8, without the ``steps/`` prefix)."""
+
+    steps: dict
+    options: dict = field(default_factory=dict)
+
+
+def step_indices(n_frames: int, frames=None) -> np.ndarray:
+    """Steps `s` (1 <= s < T) selected by a ``(start, stop)`` frame slice.
+
+    A step `s` needs frames `s - 1` and `s`; it is selected when `s` lies in the slice.
+    """
+    start, stop = (None, None) if frames is None else frames
+    idx = np.arange(n_frames)[slice(start, stop)]
+    idx = idx[idx >= 1]
+    if idx.size == 0:
+        raise InputError(
+            f"--frames {'' if start is None else start}:{'' if stop is None else stop} selects no step "
+            f"of a {n_frames}-frame sequence (a step s needs frames s-1 and s, 1 <= s < {n_frames})"
+        )
+    return idx.astype(np.int64)
+
+
+def step_margin(x, seq, thickness, margin):
+    """Certificate margin of one step: the explicit `margin`, else thickness / d0.
+
+    With thickness `h > 0` every gap must stay >= h along the path. Gaps shrink by at
+    most sigma_min(M(t)), so sigma_min >= h / d0 (d0 the smallest start gap between
+    non-adjacent primitives) suffices. d0 is searched within a radius of
+    `MARGIN_GAP_RADIUS_FACTOR * h`; no pair inside it means d0 >= that radius, and the
+    margin h / radius is still sufficient (only more conservative than needed).
+
+    Returns ``(margin, d0)``; margin is ``None`` when the start state already violates
+    the thickness (d0 <= h): no shape change can be certified then, only a translation.
+    """
+    if margin is not None:
+        return float(margin), math.nan
+    if thickness <= 0 or seq.kind == "points":
+        return 0.0, math.nan
+    from .trust_region import min_separation
+
+    radius = MARGIN_GAP_RADIUS_FACTOR * thickness
+    d0 = float(min_separation(x, E=seq.edges, F=seq.faces, radius=radius))
+    if d0 <= thickness:
+        return None, d0
+    return thickness / d0, d0
+
+
+def deform_sequence(
+    seq,
+    *,
+    model="affine",
+    projection="auto",
+    margin=None,
+    thickness=None,
+    weights=None,
+    frames=None,
+    per_vertex=False,
+    progress=None,
+) -> DeformOutput:
+    """Fit, project and certify one affine map per step of `seq`.
+
+    Parameters
+    ----------
+    seq : Sequence
+        Validated input.
+    model, projection : str
+        As in `fit_step`.
+    margin : float or None
+        Required lower bound of sigma_min(M(t)). None: thickness / d0 per step when a
+        thickness applies, else 0.
+    thickness : float or None
+        Contact distance; None takes the sequence's.
+    weights : (N,) float64 or None
+        Fit weights; None takes the sequence's (or uniform).
+    frames : (start, stop) or None
+        Slice of frames; step `s` is run when `s` is in it.
+    per_vertex : bool
+        Also keep per-vertex residual norms (S, N) float32.
+    progress : callable or None
+        Called once per finished step.
+
+    Returns
+    -------
+    DeformOutput
+        ``steps`` holds frame, A, b, deformed, model, projection, certificate_margin,
+        margin_required, start_gap, rank, residual_* / baseline_*, time_fit_s.
+
+    Notes
+    -----
+    Every applied A passes the exact certificate (`certify`) with the step's margin;
+    a step that fails it raises CertificateError instead of being written.
+    """
+    thickness = seq.thickness if thickness is None else float(thickness)
+    weights = seq.weights if weights is None else weights
+    pos = seq.positions
+    T, N = pos.shape[0], pos.shape[1]
+    S_idx = step_indices(T, frames)
+    S = S_idx.size
+
+    out = {
+        "frame": S_idx,
+        "A": np.empty((S, 3, 3)),
+        "b": np.empty((S, 3)),
+        "deformed": np.empty((S, N, 3), dtype=pos.dtype),
+        "model": np.empty(S, dtype=object),
+        "projection": np.empty(S, dtype=object),
+        "certificate_margin": np.empty(S),
+        "margin_required": np.empty(S),
+        "start_gap": np.full(S, np.nan),
+        "rank": np.empty(S, dtype=np.int64),
+        "time_fit_s": np.empty(S),
+    }
+    for who in ("residual", "baseline"):
+        for tgt in ("pred", "next"):
+            for agg in ("rms", "max"):
+                out[f"{who}_{tgt}_{agg}"] = np.full(S, np.nan)
+    if per_vertex:
+        out["residual_pred_per_vertex"] = np.empty((S, N), dtype=np.float32)
+        out["residual_next_per_vertex"] = np.full((S, N), np.nan, dtype=np.float32)
+
+    for k, s in enumerate(S_idx):
+        x_prev, x = pos[s - 1], pos[s]
+        m, d0 = step_margin(x, seq, thickness, margin)
+        step_model = model if m is not None else "translation"
+        r = fit_step(
+            x_prev, x, weights=weights, model=step_model, projection=projection,
+            margin=0.0 if m is None else m,
+        )
+        if not certify(r.A, 0.0 if m is None else m):
+            raise CertificateError(f"step {s}: the applied map failed the exact certificate (margin {m})")
+        out["A"][k], out["b"][k] = r.A, r.b
+        out["deformed"][k] = r.x_def
+        out["model"][k], out["projection"][k] = r.model, r.projection
+        out["certificate_margin"][k] = r.certificate_margin
+        out["margin_required"][k] = 1.0 if m is None else m
+        out["start_gap"][k] = d0
+        out["rank"][k] = r.rank
+        out["time_fit_s"][k] = r.time_fit_s
+
+        x64 = np.asarray(x, dtype=np.float64)
+        x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
+        x_def64 = np.asarray(r.x_def, dtype=np.float64)
+        targets = {"pred": x_pred}
+        if s + 1 < T:
+            targets["next"] = np.asarray(pos[s + 1], dtype=np.float64)
+        for tgt, y in targets.items():
+            d_def = np.linalg.norm(x_def64 - y, axis=1)
+            d_base = np.linalg.norm(x64 - y, axis=1)
+            out[f"residual_{tgt}_rms"][k] = math.sqrt(float(np.mean(d_def**2)))
+            out[f"residual_{tgt}_max"][k] = float(d_def.max())
+            out[f"baseline_{tgt}_rms"][k] = math.sqrt(float(np.mean(d_base**2)))
+            out[f"baseline_{tgt}_max"][k] = float(d_base.max())
+            if per_vertex:
+                out[f"residual_{tgt}_per_vertex"][k] = d_def
+        if progress is not None:
+            progress()
+
+    out["model"] = out["model"].astype(str)
+    out["projection"] = out["projection"].astype(str)
+    options = {
+        "model": model,
+        "projection": projection,
+        "margin": "thickness/d0" if margin is None and thickness > 0 else (0.0 if margin is None else float(margin)),
+        "thickness": thickness,
+        "frames": "all" if frames is None else f"{frames[0] if frames[0] is not None else ''}:{frames[1] if frames[1] is not None else ''}",
+        "per_vertex": bool(per_vertex),
+    }
+    return DeformOutput(steps=out, options=options)
+
+
+def summarize_steps(steps: dict) -> dict:
+    """Sequence-level summary of `deform_sequence` output (for the CLI and --json)."""
+    nxt = ~np.isnan(steps["residual_next_rms"])
+
+    def ratio(a, b):
+        return float(np.sum(a) / np.sum(b)) if np.sum(b) > 0 else math.nan
+
+    models, counts = np.unique(steps["model"], return_counts=True)
+    projs, pcounts = np.unique(steps["projection"], return_counts=True)
+    return {
+        "steps": int(len(steps["frame"])),
+        "models": {str(m): int(c) for m, c in zip(models, counts)},
+        "projections": {str(p): int(c) for p, c in zip(projs, pcounts)},
+        "min_certificate_margin": float(np.min(steps["certificate_margin"])),
+        "all_certified": bool(np.all(steps["certificate_margin"] >= steps["margin_required"])),
+        "residual_next_rms_ratio": ratio(steps["residual_next_rms"][nxt] ** 2, steps["baseline_next_rms"][nxt] ** 2) ** 0.5
+        if nxt.any() else math.nan,
+        "residual_pred_rms_ratio": ratio(steps["residual_pred_rms"] ** 2, steps["baseline_pred_rms"] ** 2) ** 0.5,
+        "mean_time_fit_ms": float(np.mean(steps["time_fit_s"]) * 1e3),
+    }
