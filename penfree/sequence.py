@@ -108,8 +108,10 @@ class Sequence:
         pos = np.asarray(self.positions)
         if pos.ndim != 3 or pos.shape[2] != 3:
             raise InputError(f"positions must be (T, N, 3); got {pos.shape} in {where}:/positions")
+        if pos.dtype.kind == "f" and pos.dtype.itemsize in (4, 8) and not pos.dtype.isnative:
+            pos = pos.astype(pos.dtype.newbyteorder("="))  # big-endian float32 stays float32
         if pos.dtype not in (np.float32, np.float64):
-            if not np.issubdtype(pos.dtype, np.number):
+            if not np.issubdtype(pos.dtype, np.number) or np.iscomplexobj(pos):
                 raise InputError(f"positions must be float32 or float64; got {pos.dtype} in {where}:/positions")
             pos = pos.astype(np.float64)
         if pos.shape[0] < 2:
@@ -128,8 +130,10 @@ class Sequence:
             w = np.asarray(self.weights, dtype=np.float64)
             if w.shape != (n,):
                 raise InputError(f"weights must be ({n},) to match positions; got {w.shape} in {where}:/weights")
-            if not np.isfinite(w).all() or (w < 0).any():
-                raise InputError(f"weights must be finite and >= 0; got min {np.nanmin(w):g} in {where}:/weights")
+            if not np.isfinite(w).all():
+                raise InputError(f"weights must be finite and >= 0; found NaN or Inf in {where}:/weights")
+            if (w < 0).any():
+                raise InputError(f"weights must be finite and >= 0; got min {w.min():g} in {where}:/weights")
             if not w.sum() > 0:
                 raise InputError(f"weights must not all be zero in {where}:/weights")
             self.weights = w
@@ -140,7 +144,10 @@ class Sequence:
                     f"components must be ({n},) integer to match positions; got {c.shape} {c.dtype} in {where}:/components"
                 )
             self.components = c.astype(np.int64)
-        t = float(self.thickness or 0.0)
+        try:
+            t = float(self.thickness or 0.0)
+        except (TypeError, ValueError):
+            t = float("nan")
         if not np.isfinite(t) or t < 0:
             raise InputError(f"thickness must be finite and >= 0; got {self.thickness!r} in {where}:@thickness")
         self.thickness = t

@@ -1,0 +1,35 @@
+"""``penfree convert IN OUT``: between HDF5, NPZ, numbered mesh files and XDMF."""
+
+import click
+
+from .info import FORMAT_NAMES
+from .options import overwrite_option
+
+
+@click.command("convert")
+@click.argument("input_path", metavar="IN")
+@click.argument("output_path", metavar="OUT")
+@click.option("--format", "out_format", type=click.Choice(FORMAT_NAMES), default=None,
+              help="Output format (default: from OUT's name).")
+@click.option("--from-format", "in_format", type=click.Choice(FORMAT_NAMES), default=None,
+              help="Input format (default: from IN's name and content).")
+@overwrite_option
+def command(input_path, output_path, out_format, in_format, overwrite):
+    """Convert the sequence IN to OUT (written atomically; IN is never modified).
+
+    \b
+      penfree convert frames.h5 frames.xdmf          # + frames.xdmf.h5, for ParaView
+      penfree convert 'out/A%08d.ply' frames.h5
+      penfree convert frames.h5 meshes/ --format meshseq   # meshes/frame_0000.ply ...
+    """
+    from ..formats import detect_format, output_paths, read_sequence, write_sequence
+    from ..formats.atomic import check_output
+
+    out_format = out_format or detect_format(output_path, writing=True)
+    in_format = in_format or detect_format(input_path)
+    inputs = output_paths(input_path, in_format)  # XDMF input: its heavy-data file too
+    for p in output_paths(output_path, out_format):
+        check_output(p, overwrite, inputs=inputs)
+    seq = read_sequence(input_path, format=in_format)
+    write_sequence(output_path, seq, format=out_format, overwrite=overwrite)
+    click.echo(f"wrote {output_path} ({out_format}): {seq.n_frames} frames, {seq.n_vertices} vertices, {seq.kind}")

@@ -1,0 +1,293 @@
+"""HDF5 layout version 1, the primary format (SPEC section 2).
+
+``positions (T, N, 3)`` float32/float64, one frame per chunk; ``edges``,
+``faces``, ``weights``, ``components``; attrs ``penfree_format``, ``dt``,
+``thickness`` (alias ``contact_radius``), ``source``; kinematic obstacles in
+``obstacles/<name>/{positions, faces, edges}``.
+
+Errors name the file and the dataset: ``frames.h5:/positions``.
+
+>>> from penfree.formats import read_sequence
+>>> seq = read_sequence("samples/rods.h5")        # doctest: +SKIP
+>>> seq.positions.shape, seq.kind                   # doctest: +SKIP
+((40, 2048, 3), 'segments')
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from contextlib import contextmanager
+
+import h5py
+import numpy as np
+
+from ..constants import FORMAT_VERSION
+from ..errors import FormatError, InputError
+from ..sequence import Obstacle, Sequence
+from ._registry import register
+from .atomic import atomic_file
+
+H5_MAGIC = b"\x89HDF\r\n\x1a\n"
+#: Attributes with a meaning of their own; everything else is carried in ``Sequence.attrs``.
+RESERVED_ATTRS = ("penfree_format", "dt", "thickness", "contact_radius", "source")
+#: gzip level 4 + shuffle: float frames shrink ~2x at a small fraction of the write time.
+GZIP_LEVEL = 4
+
+
+def has_h5_magic(path) -> bool:
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(8) == H5_MAGIC
+    except OSError:
+        return False
+
+
+@contextmanager
+def open_h5(path, mode="r"):
+    """``h5py.File`` with OS errors mapped to one-line InputError/FormatError naming the file."""
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise InputError(f"no such file: {path}")
+    if os.path.isdir(path):
+        raise InputError(f"{path} is a directory; expected an HDF5 file")
+    try:
+        f = h5py.File(path, mode)
+    except OSError as exc:
+        if has_h5_magic(path):
+            raise FormatError(f"{path} is a truncated or damaged HDF5 file ({_h5_reason(exc)}); expected a complete HDF5 file") from None
+        raise FormatError(f"{path} is not an HDF5 file (no HDF5 signature); expected HDF5 layout v1") from None
+    try:
+        yield f
+    except OSError as exc:  # damage discovered while reading a dataset
+        raise FormatError(f"{path} is damaged: {_h5_reason(exc)}; expected a complete HDF5 file") from None
+    finally:
+        f.close()
+
+
+def _h5_reason(exc) -> str:
+    msg = str(exc).split("(", 1)[-1].rstrip(")") if "(" in str(exc) else str(exc)
+    return " ".join(msg.split())[:160]
+
+
+# --- attributes ----------------------------------------------------------------
+
+def encode_attr(value):
+    """A Python value -> something h5py stores; dicts, lists and None become ``"json:..."``."""
+    if isinstance(value, (bool, np.bool_)):
+        return np.bool_(value)
+    if isinstance(value, str):
+        return "json:" + json.dumps(value) if value.startswith("json:") else value
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        return value
+    if isinstance(value, np.ndarray) and value.dtype.kind in "biuf":
+        return value
+    return "json:" + json.dumps(value, default=json_default)
+
+
+def decode_attr(value):
+    """The inverse of :func:`encode_attr` (numpy scalars become Python scalars)."""
+    if isinstance(value, bytes):
+        value = value.decode("utf-8", "replace")
+    if isinstance(value, str):
+        return json.loads(value[5:]) if value.startswith("json:") else value
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def write_attrs(obj, attrs: dict) -> None:
+    for key, value in attrs.items():
+        obj.attrs[key] = encode_attr(value)
+
+
+def read_attrs(obj) -> dict:
+    return {k: decode_attr(v) for k, v in obj.attrs.items()}
+
+
+# --- reading -----------------------------------------------------------------
+
+def _dataset(f, name, where):
+    obj = f.get(name)
+    if obj is None:
+        return None
+    if not isinstance(obj, h5py.Dataset):
+        raise FormatError(f"{name} must be a dataset; got a group in {where}:/{name}")
+    return obj
+
+
+def _float_dtype(ds, where, name) -> np.dtype:
+    dt = np.dtype(ds.dtype)
+    if dt.kind == "f" and dt.itemsize in (4, 8):
+        return dt.newbyteorder("=")
+    if dt.kind in "fiu":
+        return np.dtype(np.float64)
+    raise FormatError(f"{name} must be float32 or float64; got {dt} in {where}:/{name}")
+
+
+def read_positions(ds, where, name="positions") -> np.ndarray:
+    """Read ``(T, N, 3)`` frame by frame into one array, naming the first non-finite frame."""
+    if ds.ndim != 3 or ds.shape[2] != 3:
+        raise FormatError(f"{name} must be (T, N, 3); got {ds.shape} in {where}:/{name}")
+    if ds.shape[0] < 2 and name == "positions":
+        raise InputError(f"positions must hold at least 2 frames; got {ds.shape[0]} in {where}:/positions")
+    out = np.empty(ds.shape, dtype=_float_dtype(ds, where, name))
+    for s in range(ds.shape[0]):
+        out[s] = ds[s]
+        if not np.isfinite(out[s]).all():
+            raise InputError(f"{name} must be finite; frame {s} holds NaN or Inf in {where}:/{name}")
+    return out
+
+
+def _read_array(g, name, where, kind, prefix=""):
+    full = prefix + name
+    ds = _dataset(g, name, where)
+    if ds is None:
+        return None
+    a = ds[()]
+    if not isinstance(a, np.ndarray) or a.dtype.kind not in kind:
+        what = {"iu": "integer", "iuf": "numeric", "f": "float"}.get(kind, kind)
+        got = getattr(a, "dtype", type(a).__name__)
+        raise FormatError(f"{full} must be a {what} array; got {got} in {where}:/{full}")
+    return a
+
+
+def _scalar_attr(attrs, key, where):
+    if key not in attrs:
+        return None
+    value = decode_attr(attrs[key])
+    if isinstance(value, np.ndarray) and value.size == 1:
+        value = value.reshape(()).item()
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise InputError(f"attribute {key} must be a finite number; got {value!r} in {where}:@{key}")
+    return float(value)
+
+
+def read_from_h5(f: h5py.File, where: str) -> Sequence:
+    """The layout-v1 sequence held by an open file (not yet validated)."""
+    version = f.attrs.get("penfree_format")
+    if version is not None:
+        version = decode_attr(version)
+        if not isinstance(version, int) or isinstance(version, bool):
+            raise FormatError(f"penfree_format must be an integer; got {version!r} in {where}:@penfree_format")
+        if version > FORMAT_VERSION or version < 1:
+            raise FormatError(
+                f"unsupported penfree_format {version} in {where}:@penfree_format; this penfree reads version {FORMAT_VERSION}"
+            )
+    ds = _dataset(f, "positions", where)
+    if ds is None:
+        raise FormatError(f"missing dataset positions (T, N, 3) in {where}:/positions")
+    seq = Sequence(
+        positions=read_positions(ds, where),
+        edges=_read_array(f, "edges", where, "iuf"),
+        faces=_read_array(f, "faces", where, "iuf"),
+        weights=_read_array(f, "weights", where, "iuf"),
+        components=_read_array(f, "components", where, "iu"),
+        origin=where,
+    )
+    attrs = f.attrs
+    thickness = _scalar_attr(attrs, "thickness", where)
+    if thickness is None:
+        thickness = _scalar_attr(attrs, "contact_radius", where)
+    seq.thickness = thickness or 0.0
+    seq.dt = _scalar_attr(attrs, "dt", where)
+    if seq.dt is not None and not seq.dt > 0:
+        raise InputError(f"attribute dt must be > 0; got {seq.dt!r} in {where}:@dt")
+    if "source" in attrs:
+        seq.source = str(decode_attr(attrs["source"]))
+    seq.attrs = {k: decode_attr(v) for k, v in attrs.items() if k not in RESERVED_ATTRS}
+    obs = f.get("obstacles")
+    if obs is not None:
+        if not isinstance(obs, h5py.Group):
+            raise FormatError(f"obstacles must be a group of obstacles/<name>/positions in {where}:/obstacles")
+        for name in sorted(obs):
+            seq.obstacles.append(_read_obstacle(obs[name], f"obstacles/{name}", name, where))
+    return seq
+
+
+def _read_obstacle(g, path, name, where) -> Obstacle:
+    if not isinstance(g, h5py.Group) or "positions" not in g:
+        raise FormatError(f"obstacle must be a group with positions (T, M, 3) or (M, 3) in {where}:/{path}")
+    ds_name = f"{path}/positions"
+    ds = _dataset(g, "positions", where)
+    if ds.ndim == 2:
+        pos = ds[()]
+        if pos.shape[-1] != 3 or pos.dtype.kind not in "fiu":
+            raise FormatError(f"{ds_name} must be (T, M, 3) or (M, 3) float; got {pos.shape} {pos.dtype} in {where}:/{ds_name}")
+    else:
+        pos = read_positions(ds, where, ds_name)
+    return Obstacle(
+        name=name,
+        positions=pos,
+        faces=_read_array(g, "faces", where, "iuf", prefix=path + "/"),
+        edges=_read_array(g, "edges", where, "iuf", prefix=path + "/"),
+    )
+
+
+def read_hdf5(path: str) -> Sequence:
+    with open_h5(path) as f:
+        return read_from_h5(f, path)
+
+
+# --- writing -----------------------------------------------------------------
+
+def write_positions(g, name, positions, dtype=None) -> None:
+    """``(T, N, 3)`` with one frame per chunk, gzip + shuffle."""
+    positions = np.asarray(positions)
+    dtype = np.dtype(dtype or positions.dtype)
+    chunks = (1,) + positions.shape[1:] if positions.ndim == 3 and positions.size else None
+    g.create_dataset(
+        name, data=positions.astype(dtype, copy=False), chunks=chunks,
+        compression="gzip" if chunks else None, compression_opts=GZIP_LEVEL if chunks else None,
+        shuffle=bool(chunks),
+    )
+
+
+def write_to_h5(f: h5py.File, seq: Sequence) -> None:
+    """Write `seq` as layout v1 into an open, empty file."""
+    write_positions(f, "positions", seq.positions)
+    for name in ("edges", "faces", "components"):
+        a = getattr(seq, name)
+        if a is not None:
+            f.create_dataset(name, data=np.asarray(a, dtype=np.int64))
+    if seq.weights is not None:
+        f.create_dataset("weights", data=np.asarray(seq.weights, dtype=np.float64))
+    write_attrs(f, {k: v for k, v in seq.attrs.items() if k not in RESERVED_ATTRS})
+    f.attrs["penfree_format"] = FORMAT_VERSION
+    f.attrs["thickness"] = float(seq.thickness or 0.0)
+    if seq.dt is not None:
+        f.attrs["dt"] = float(seq.dt)
+    if seq.source is not None:
+        f.attrs["source"] = str(seq.source)
+    for ob in seq.obstacles:
+        g = f.create_group(f"obstacles/{ob.name}")
+        if np.ndim(ob.positions) == 3:
+            write_positions(g, "positions", ob.positions)
+        else:
+            g.create_dataset("positions", data=np.asarray(ob.positions))
+        for name in ("faces", "edges"):
+            a = getattr(ob, name)
+            if a is not None and len(a):
+                g.create_dataset(name, data=np.asarray(a, dtype=np.int64))
+
+
+def write_hdf5(path: str, seq: Sequence, overwrite: bool = False) -> None:
+    with atomic_file(path, overwrite) as tmp:
+        with h5py.File(tmp, "w") as f:
+            write_to_h5(f, seq)
+
+
+def _sniff(path: str, writing: bool = False) -> bool:
+    # Content wins over the name for existing inputs (an HDF5 file called frames.dat).
+    return not writing and os.path.isfile(path) and has_h5_magic(path)
+
+
+register("hdf5", (".h5", ".hdf5", ".he5"), read_hdf5, write_hdf5, sniff=_sniff)

@@ -1,0 +1,287 @@
+"""Numbered mesh-file sequences (``frame_0001.ply``, ``out/A%08d.ply``, ``frames/*.obj``).
+
+A sequence is named by a printf pattern (``out/A%08d.ply``), a glob
+(``frames/frame_*.obj``), a directory holding one numbered series, or one
+numbered file whose siblings share its name pattern (``frame_0001.ply`` ->
+every ``frame_NNNN.ply``). Frames are sorted by number, not by name. Files are
+read through meshio, OBJ through :mod:`penfree.formats.obj` (meshio drops
+``l`` polylines). Triangles become faces, lines/polylines edges, quads and
+polygons a fan of triangles. Every frame must have the vertex count and the
+topology of the first.
+
+Mesh files carry no thickness, dt, weights or obstacles: they are not written
+and read back as absent.
+
+>>> seq = read_sequence("out/A%08d.ply")                          # doctest: +SKIP
+>>> write_sequence("frames/", seq)  # frames/frame_0000.ply ...  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import contextlib
+import glob
+import io
+import os
+import re
+import shutil
+import tempfile
+
+import numpy as np
+
+from ..errors import FormatError, InputError, OutputExistsError
+from ..sequence import Sequence
+from ._registry import register
+from .atomic import PRINTF_DIRECTIVE, atomic_dir, printf_to_glob
+from .obj import read_obj, write_obj
+
+MESH_EXTENSIONS = (".ply", ".obj", ".vtk", ".vtu", ".off", ".stl")
+DEFAULT_PATTERN = "frame_%04d.ply"
+#: The last run of digits in a file name is its frame number.
+NUMBERED = re.compile(r"^(.*?)(\d+)(\D*)$")
+#: Output names count as numbered only with the digits right before the extension.
+NUMBERED_FILE = re.compile(r"^(.*?)(\d+)(\.[^.]+)$")
+GLOB_CHARS = re.compile(r"[*?\[]")
+
+
+# --- finding the files ----------------------------------------------------------
+
+def _pattern_regex(basename: str) -> re.Pattern:
+    parts = PRINTF_DIRECTIVE.split(basename)
+    # split() with 2 groups yields [text, zero, width, text, ...]
+    pieces = [re.escape(parts[0])]
+    for k in range(1, len(parts), 3):
+        pieces.append(r"(\d+)")
+        pieces.append(re.escape(parts[k + 2]))
+    return re.compile("^" + "".join(pieces) + "$")
+
+
+def _from_pattern(path: str) -> list:
+    d, base = os.path.split(path)
+    if len(PRINTF_DIRECTIVE.findall(base)) != 1:
+        raise InputError(f"pattern {path} must hold exactly one %d directive (e.g. A%08d.ply)")
+    rx = _pattern_regex(base)
+    found = []
+    for name in _listdir(d or ".", path):
+        m = rx.match(name)
+        if m and base % int(m.group(1)) == name:
+            found.append((int(m.group(1)), os.path.join(d, name)))
+    return [p for _, p in sorted(found)]
+
+
+def _listdir(d: str, path: str) -> list:
+    try:
+        return sorted(os.listdir(d))
+    except OSError:
+        raise InputError(f"no such directory {d or '.'} for {path}") from None
+
+
+def _number_key(p: str):
+    m = NUMBERED.match(os.path.basename(p))
+    return (0, int(m.group(2)), p) if m else (1, 0, p)
+
+
+def _from_siblings(path: str) -> list:
+    d, base = os.path.split(path)
+    m = NUMBERED.match(base)
+    if not m:
+        raise InputError(f"{path} has no frame number in its name; expected e.g. frame_0001.ply, a pattern or a directory")
+    prefix, suffix = m.group(1), m.group(3)
+    rx = re.compile("^" + re.escape(prefix) + r"(\d+)" + re.escape(suffix) + "$")
+    return sorted((os.path.join(d, n) for n in _listdir(d or ".", path) if rx.match(n)), key=_number_key)
+
+
+def _from_directory(path: str) -> list:
+    groups = {}
+    for name in _listdir(path, path):
+        full = os.path.join(path, name)
+        m = NUMBERED.match(name)
+        if name.startswith(".") or not m or os.path.splitext(name)[1].lower() not in MESH_EXTENSIONS:
+            continue
+        if os.path.isfile(full):
+            groups.setdefault((m.group(1), m.group(3)), []).append(full)
+    if not groups:
+        raise InputError(f"directory {path} holds no numbered mesh files; expected e.g. frame_0001.ply ({' '.join(MESH_EXTENSIONS)})")
+    if len(groups) > 1:
+        names = ", ".join(f"{p}*{s}" for p, s in sorted(groups))
+        raise InputError(f"directory {path} holds several numbered series ({names}); pass a pattern such as {path}/frame_%04d.ply")
+    return sorted(next(iter(groups.values())), key=_number_key)
+
+
+def frame_files(path: str) -> list:
+    """The frame files named by `path`, sorted by frame number."""
+    base = os.path.basename(path)
+    if PRINTF_DIRECTIVE.search(base):
+        files = _from_pattern(path)
+    elif os.path.isdir(path):
+        files = _from_directory(path)
+    elif GLOB_CHARS.search(path) and not os.path.exists(path):
+        files = sorted((p for p in glob.glob(path) if os.path.isfile(p)), key=_number_key)
+    elif os.path.isfile(path):
+        files = _from_siblings(path)
+    else:
+        raise InputError(f"no such file or directory: {path}")
+    if len(files) < 2:
+        raise InputError(f"{path} names {len(files)} mesh file(s); a sequence needs at least 2 frames")
+    return files
+
+
+# --- reading -----------------------------------------------------------------
+
+def _fan(cells: np.ndarray) -> np.ndarray:
+    k = cells.shape[1]
+    return np.concatenate([cells[:, [0, j, j + 1]] for j in range(1, k - 1)]) if len(cells) else cells[:, :3]
+
+
+def read_mesh(path: str):
+    """One frame: ``points (N, 3)``, ``edges (E, 2)`` or None, ``faces (F, 3)`` or None."""
+    if path.lower().endswith(".obj"):
+        return read_obj(path)
+    import meshio
+
+    sink = io.StringIO()
+    try:
+        # meshio prints to the console and may call sys.exit on unreadable files.
+        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+            mesh = meshio.read(path)
+    except (Exception, SystemExit) as exc:
+        msg = " ".join((str(exc) if not isinstance(exc, SystemExit) else sink.getvalue()).split())[:120]
+        raise FormatError(f"cannot read mesh file {path} ({type(exc).__name__}: {msg})") from None
+    pts = np.asarray(mesh.points)
+    if pts.ndim != 2 or pts.shape[1] not in (2, 3):
+        raise FormatError(f"points must be (N, 3); got {pts.shape} in {path}")
+    if pts.shape[1] == 2:
+        pts = np.column_stack([pts, np.zeros(len(pts), pts.dtype)])
+    edges, faces = [], []
+    for block in mesh.cells:
+        data = np.asarray(block.data, dtype=np.int64)
+        if block.type == "triangle":
+            faces.append(data)
+        elif block.type in ("quad", "polygon") or block.type.startswith("polygon"):
+            faces.append(_fan(data))
+        elif block.type == "line":
+            edges.append(data)
+        elif block.type != "vertex":
+            raise FormatError(f"cells of type {block.type} in {path}; expected triangles, quads, polygons or lines")
+    e = np.concatenate(edges) if edges else None
+    f = np.concatenate(faces) if faces else None
+    return pts, e, f
+
+
+def _same(a, b) -> bool:
+    if a is None or b is None:
+        return a is None and b is None
+    return a.shape == b.shape and np.array_equal(a, b)
+
+
+def read_meshseq(path: str) -> Sequence:
+    files = frame_files(path)
+    pts0, edges, faces = read_mesh(files[0])
+    # float32 stays float32 whatever its byte order (legacy VTK is big-endian).
+    dtype = np.dtype(np.float32) if pts0.dtype.kind == "f" and pts0.dtype.itemsize == 4 else np.dtype(np.float64)
+    positions = np.empty((len(files), len(pts0), 3), dtype=dtype)
+    positions[0] = pts0
+    for s, name in enumerate(files[1:], 1):
+        pts, e, f = read_mesh(name)
+        if pts.shape != pts0.shape:
+            raise InputError(f"frame {s} has {len(pts)} vertices, frame 0 ({files[0]}) has {len(pts0)}; in {name}")
+        if not (_same(e, edges) and _same(f, faces)):
+            raise InputError(f"frame {s} has a different topology (edges/faces) than frame 0 ({files[0]}); in {name}")
+        positions[s] = pts
+        if not np.isfinite(positions[s]).all():
+            raise InputError(f"positions must be finite; frame {s} holds NaN or Inf in {name}")
+    if not np.isfinite(positions[0]).all():
+        raise InputError(f"positions must be finite; frame 0 holds NaN or Inf in {files[0]}")
+    return Sequence(positions=positions, edges=edges, faces=faces, origin=path)
+
+
+# --- writing -----------------------------------------------------------------
+
+def output_pattern(path: str) -> str:
+    """The printf pattern that writing to `path` uses."""
+    base = os.path.basename(path)
+    if PRINTF_DIRECTIVE.search(base):
+        return path
+    ext = os.path.splitext(base)[1].lower()
+    if path.endswith(os.sep) or os.path.isdir(path) or ext not in MESH_EXTENSIONS:
+        return os.path.join(path, DEFAULT_PATTERN)
+    m = NUMBERED_FILE.match(base)
+    if m:  # frame_0001.ply -> frame_%04d.ply
+        return os.path.join(os.path.dirname(path), f"{m.group(1)}%0{len(m.group(2))}d{m.group(3)}")
+    stem, ext = os.path.splitext(base)
+    return os.path.join(os.path.dirname(path), f"{stem}_%04d{ext}")
+
+
+def _write_mesh(path: str, points, edges, faces) -> None:
+    if path.lower().endswith(".obj"):
+        write_obj(path, points, edges, faces)
+        return
+    import meshio
+
+    cells = []
+    # int32: PLY cannot hold int64 (meshio would print a warning and cast anyway).
+    if faces is not None and len(faces):
+        cells.append(("triangle", np.asarray(faces, dtype=np.int32)))
+    if edges is not None and len(edges):
+        cells.append(("line", np.asarray(edges, dtype=np.int32)))
+    if not cells and not path.lower().endswith(".ply"):
+        # VTK/VTU files without cells cannot be read back; one vertex cell per point can.
+        cells.append(("vertex", np.arange(len(points), dtype=np.int32)[:, None]))
+    sink = io.StringIO()
+    with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+        meshio.write(path, meshio.Mesh(np.asarray(points), cells))
+
+
+def _write_frames(directory: str, base: str, seq: Sequence) -> list:
+    names = []
+    for s in range(seq.n_frames):
+        names.append(base % s)
+        _write_mesh(os.path.join(directory, names[-1]), seq.positions[s], seq.edges, seq.faces)
+    return names
+
+
+def write_meshseq(path: str, seq: Sequence, overwrite: bool = False) -> None:
+    pattern = output_pattern(path)
+    d, base = os.path.split(pattern)
+    d = d or "."
+    ext = os.path.splitext(base)[1].lower()
+    if ext not in MESH_EXTENSIONS:
+        raise InputError(f"mesh sequence output {pattern} must end in one of {' '.join(MESH_EXTENSIONS)}")
+    if not os.path.isdir(d):  # a fresh directory: swap in the whole tree at once
+        with atomic_dir(d) as tmp:
+            _write_frames(tmp, base, seq)
+        return
+    old = glob.glob(printf_to_glob(pattern))
+    if old and not overwrite:
+        raise OutputExistsError(f"output {pattern} exists ({len(old)} files); pass --overwrite (overwrite=True) to replace it")
+    try:
+        tmp = tempfile.mkdtemp(prefix=f".{base.replace('%', '')}.tmp-", dir=d)
+    except OSError as exc:
+        raise InputError(f"cannot create output {pattern}: {exc.strerror or exc}") from None
+    try:
+        names = _write_frames(tmp, base, seq)
+        for name in names:
+            os.replace(os.path.join(tmp, name), os.path.join(d, name))
+        stale = set(_from_pattern_quiet(pattern)) - {os.path.join(d, n) for n in names}
+        for p in stale:  # frames of a longer earlier sequence would be read back as ours
+            os.unlink(p)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _from_pattern_quiet(pattern: str) -> list:
+    try:
+        return _from_pattern(pattern)
+    except InputError:
+        return []
+
+
+def _sniff(path: str, writing: bool = False) -> bool:
+    base = os.path.basename(path)
+    if PRINTF_DIRECTIVE.search(base) or path.endswith(os.sep):
+        return True
+    if writing:
+        return os.path.isdir(path)
+    return os.path.isdir(path) or (bool(GLOB_CHARS.search(path)) and not os.path.exists(path))
+
+
+register("meshseq", MESH_EXTENSIONS, read_meshseq, write_meshseq, sniff=_sniff)

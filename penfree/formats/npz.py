@@ -1,0 +1,125 @@
+"""NumPy ``.npz`` archives: ``positions`` (or ``vertices_seq``) ``(T, N, 3)`` plus topology.
+
+Optional arrays: ``faces``, ``edges``, ``weights``, ``components``, 0-d
+``thickness`` / ``contact_radius``, ``dt``, ``source``, ``attrs_json`` (other attributes as one JSON string), and obstacles as
+``obstacles/<name>/positions`` with ``obstacles/<name>/faces`` or ``.../edges``.
+Archives are read with ``allow_pickle=False``.
+
+>>> import numpy as np
+>>> np.savez("drop.npz", vertices_seq=np.zeros((2, 3, 3)), faces=[[0, 1, 2]])  # doctest: +SKIP
+>>> read_sequence("drop.npz").kind                                           # doctest: +SKIP
+'triangles'
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+
+import numpy as np
+
+from ..errors import FormatError, InputError
+from ..sequence import Obstacle, Sequence
+from ._registry import register
+from .atomic import atomic_file
+from .hdf5 import json_default
+
+POSITION_KEYS = ("positions", "vertices_seq")
+
+
+def _scalar(z, key, where):
+    if key not in z:
+        return None
+    a = z[key]
+    if a.size != 1 or a.dtype.kind not in "iuf" or not np.isfinite(a).all():
+        raise InputError(f"{key} must be one finite number; got shape {a.shape} {a.dtype} in {where}:/{key}")
+    return float(a.reshape(()))
+
+
+def read_npz(path: str) -> Sequence:
+    if not os.path.isfile(path):
+        raise InputError(f"no such file: {path}")
+    try:
+        z = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise FormatError(f"{path} is not a readable .npz archive ({type(exc).__name__}); expected numpy savez output") from None
+    if not hasattr(z, "files"):
+        raise FormatError(f"{path} holds a single array, not an .npz archive; expected positions (T, N, 3) and topology")
+    try:
+        with z:
+            return _read(z, path)
+    except (zipfile.BadZipFile, EOFError, OSError) as exc:
+        raise FormatError(f"{path} is a damaged .npz archive ({type(exc).__name__})") from None
+    except ValueError as exc:
+        if "pickle" in str(exc):
+            raise FormatError(f"{path} holds pickled objects; expected plain numeric arrays") from None
+        raise
+
+
+def _read(z, path) -> Sequence:
+    key = next((k for k in POSITION_KEYS if k in z.files), None)
+    if key is None:
+        raise FormatError(f"missing array positions (or vertices_seq) (T, N, 3) in {path}:/positions; found {sorted(z.files)}")
+    pos = z[key]
+    if pos.ndim == 3 and pos.shape[-1] == 3 and pos.dtype.kind == "f":
+        for s in range(pos.shape[0]):  # name the first bad frame
+            if not np.isfinite(pos[s]).all():
+                raise InputError(f"{key} must be finite; frame {s} holds NaN or Inf in {path}:/{key}")
+    elif pos.ndim != 3 or pos.shape[-1] != 3:
+        raise InputError(f"{key} must be (T, N, 3); got {pos.shape} in {path}:/{key}")
+    thickness = _scalar(z, "thickness", path)
+    if thickness is None:
+        thickness = _scalar(z, "contact_radius", path)
+    seq = Sequence(
+        positions=pos,
+        edges=z["edges"] if "edges" in z.files else None,
+        faces=z["faces"] if "faces" in z.files else None,
+        weights=z["weights"] if "weights" in z.files else None,
+        components=z["components"] if "components" in z.files else None,
+        thickness=thickness or 0.0,
+        dt=_scalar(z, "dt", path),
+        source=str(z["source"]) if "source" in z.files else None,
+        origin=path,
+    )
+    if "attrs_json" in z.files:
+        try:
+            seq.attrs = json.loads(str(z["attrs_json"]))
+        except ValueError:
+            raise FormatError(f"attrs_json must be a JSON object in {path}:/attrs_json") from None
+    names = sorted({k.split("/")[1] for k in z.files if k.startswith("obstacles/") and k.count("/") == 2})
+    for name in names:
+        p = f"obstacles/{name}/"
+        if p + "positions" not in z.files:
+            raise FormatError(f"obstacle needs positions (T, M, 3) or (M, 3) in {path}:/{p}positions")
+        seq.obstacles.append(Obstacle(
+            name, z[p + "positions"],
+            faces=z[p + "faces"] if p + "faces" in z.files else None,
+            edges=z[p + "edges"] if p + "edges" in z.files else None,
+        ))
+    return seq
+
+
+def write_npz(path: str, seq: Sequence, overwrite: bool = False) -> None:
+    arrays = {"positions": seq.positions, "thickness": np.float64(seq.thickness or 0.0)}
+    for name in ("edges", "faces", "weights", "components"):
+        if getattr(seq, name) is not None:
+            arrays[name] = getattr(seq, name)
+    if seq.dt is not None:
+        arrays["dt"] = np.float64(seq.dt)
+    if seq.source is not None:
+        arrays["source"] = np.str_(seq.source)
+    if seq.attrs:
+        arrays["attrs_json"] = np.str_(json.dumps(seq.attrs, default=json_default))
+    for ob in seq.obstacles:
+        arrays[f"obstacles/{ob.name}/positions"] = ob.positions
+        for name in ("faces", "edges"):
+            if getattr(ob, name) is not None and len(getattr(ob, name)):
+                arrays[f"obstacles/{ob.name}/{name}"] = getattr(ob, name)
+    with atomic_file(path, overwrite) as tmp:
+        # A file object, not a name: savez appends ".npz" to names that lack it.
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+
+
+register("npz", (".npz",), read_npz, write_npz)

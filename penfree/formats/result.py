@@ -1,0 +1,228 @@
+"""The ``deform`` output file (SPEC section 8).
+
+A result file is an HDF5 layout-v1 sequence file (every input dataset copied,
+so ``read_sequence`` reads it as its input) plus the group ``steps/`` (one
+row per step) and optional groups such as ``stats/`` and ``selection/``.
+
+=============================  ==================================================
+``steps/frame`` (S,) int       frame index s of each step, 1 <= s <= T - 1
+``steps/A`` (S, 3, 3) float64  the map applied: x_def = A x + b up to rounding
+``steps/b`` (S, 3) float64
+``steps/deformed`` (S, N, 3)   x_def in the input dtype, one step per chunk
+``steps/model`` (S,) str       variable-length UTF-8 in the file, numpy str in memory
+any other ``steps/<name>``     (S, ...) per-step arrays
+=============================  ==================================================
+
+Attributes are str, int, float, bool or JSON-able values (dicts, lists, None are
+stored as ``"json:..."`` strings and decoded on read); ``penfree_format`` and
+``penfree_version`` are always written.
+
+>>> res = read_result("deformed.h5")                   # doctest: +SKIP
+>>> res.steps["A"].shape, res.sequence.n_frames          # doctest: +SKIP
+((39, 3, 3), 40)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import h5py
+import numpy as np
+
+from .._version import __version__
+from ..constants import FORMAT_VERSION
+from ..errors import FormatError, InputError
+from ..sequence import Sequence
+from .atomic import atomic_file
+from .hdf5 import GZIP_LEVEL, has_h5_magic, open_h5, read_attrs, read_from_h5, write_attrs, write_to_h5
+
+#: Top-level names a result file uses for the sequence itself; extra groups must avoid them.
+SEQUENCE_NAMES = ("positions", "edges", "faces", "weights", "components", "obstacles", "steps")
+
+
+@dataclass
+class DeformResult:
+    """A deform result read back.
+
+    Attributes
+    ----------
+    sequence : Sequence
+        The input sequence (validated, ``origin`` = the result file).
+    steps : dict of str -> ndarray
+        ``frame (S,) int64``, ``A (S, 3, 3)``, ``b (S, 3)``, ``deformed (S, N, 3)``
+        (input dtype), ``model``/``projection`` (S,) str, and the other per-step arrays.
+    attrs : dict
+        File attributes (decoded; includes ``penfree_format``, ``penfree_version``).
+    groups : dict of str -> dict of str -> ndarray
+        Further groups (``stats``, ``selection``, ...); nested groups become nested dicts.
+    origin : str
+    """
+
+    sequence: Sequence
+    steps: dict
+    attrs: dict = field(default_factory=dict)
+    groups: dict = field(default_factory=dict)
+    origin: str = "<memory>"
+
+    @property
+    def n_steps(self) -> int:
+        return int(len(self.steps["frame"]))
+
+
+# --- writing -----------------------------------------------------------------
+
+def _is_text(a: np.ndarray) -> bool:
+    return a.dtype.kind in "USO"
+
+
+def _write_array(g, name, value, deformed_dtype=None):
+    if isinstance(value, dict):
+        sub = g.create_group(name)
+        for k, v in value.items():
+            _write_array(sub, k, v)
+        return
+    a = np.asarray(value)
+    if _is_text(a):
+        data = np.array([str(x) for x in a.ravel()], dtype=object).reshape(a.shape)
+        g.create_dataset(name, data=data, dtype=h5py.string_dtype("utf-8"))
+    elif deformed_dtype is not None:
+        chunks = (1,) + a.shape[1:] if a.size else None
+        g.create_dataset(name, data=a.astype(deformed_dtype, copy=False), chunks=chunks,
+                         compression="gzip" if chunks else None,
+                         compression_opts=GZIP_LEVEL if chunks else None, shuffle=bool(chunks))
+    else:
+        g.create_dataset(name, data=a)
+
+
+def _check_steps(steps: dict, T: int, N: int, where: str) -> int:
+    """Shapes and ranges of the per-step arrays; returns S. Messages name ``where:/steps/<name>``."""
+    for key in ("frame", "A", "b", "deformed"):
+        if key not in steps:
+            raise FormatError(f"missing dataset steps/{key} in {where}:/steps/{key}")
+    frame = np.asarray(steps["frame"])
+    if frame.ndim != 1 or (frame.size and frame.dtype.kind not in "iu"):
+        raise FormatError(f"steps/frame must be (S,) integer; got {frame.shape} {frame.dtype} in {where}:/steps/frame")
+    S = len(frame)
+    if S and (frame.min() < 1 or frame.max() > T - 1):
+        bad = int(frame.min() if frame.min() < 1 else frame.max())
+        raise FormatError(f"steps/frame must be in [1, {T - 1}] for {T} frames; found {bad} in {where}:/steps/frame")
+    expect = {"A": (S, 3, 3), "b": (S, 3), "deformed": (S, N, 3)}
+    for key, shape in expect.items():
+        got = np.shape(steps[key])
+        if got != shape:
+            raise FormatError(f"steps/{key} must be {shape}; got {got} in {where}:/steps/{key}")
+    for key, value in steps.items():
+        shape = np.shape(value)
+        if not isinstance(value, dict) and len(shape) >= 1 and shape[0] != S:
+            raise FormatError(f"steps/{key} must have one row per step ({S}); got {shape} in {where}:/steps/{key}")
+    return S
+
+
+def write_result(path, seq: Sequence, steps: dict, attrs: dict, groups: dict | None = None,
+                 overwrite: bool = False) -> None:
+    """Write a deform result atomically (temporary name beside `path`, renamed at the end).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    seq : Sequence
+        The input sequence; copied into the file (positions, topology, weights, obstacles, attrs).
+    steps : dict of str -> array_like
+        Per-step arrays, see the module docstring; ``deformed`` is cast to the input dtype.
+    attrs : dict
+        Options, input name, ...; written over the sequence's own attributes (so a
+        ``thickness``, ``dt`` or ``source`` key here replaces the sequence's value
+        when the file is read back; ``penfree_format`` and ``penfree_version`` are
+        always set by this function).
+    groups : dict of str -> dict of str -> array_like, optional
+        Extra groups (``stats``, ``selection``).
+    overwrite : bool
+        Replace an existing `path`; otherwise OutputExistsError.
+
+    Raises
+    ------
+    OutputExistsError, FormatError
+    """
+    where = str(path)
+    seq.validate()
+    _check_steps(steps, seq.n_frames, seq.n_vertices, where)
+    for name in groups or {}:
+        if name in SEQUENCE_NAMES or "/" in name:
+            raise InputError(f"result group name {name!r} is reserved or not a plain name in {where}")
+    with atomic_file(path, overwrite) as tmp:
+        with h5py.File(tmp, "w") as f:
+            write_to_h5(f, seq)
+            write_attrs(f, attrs)
+            f.attrs["penfree_format"] = FORMAT_VERSION
+            f.attrs["penfree_version"] = __version__
+            g = f.create_group("steps")
+            for key, value in steps.items():
+                _write_array(g, key, value, deformed_dtype=seq.dtype if key == "deformed" else None)
+            for name, content in (groups or {}).items():
+                _write_array(f, name, content)
+
+
+# --- reading -----------------------------------------------------------------
+
+def _read_group(g, where, skip_deformed=False) -> dict:
+    out = {}
+    for key, obj in g.items():
+        if isinstance(obj, h5py.Group):
+            out[key] = _read_group(obj, where)
+        elif skip_deformed and key == "deformed":
+            continue
+        elif h5py.check_string_dtype(obj.dtype) is not None:
+            out[key] = np.asarray(obj.asstr()[()]).astype(str)
+        else:
+            out[key] = obj[()]
+    return out
+
+
+def _read_deformed(ds, where) -> np.ndarray:
+    dt = np.dtype(ds.dtype)
+    if dt.kind != "f" or ds.ndim != 3:
+        raise FormatError(f"steps/deformed must be (S, N, 3) float; got {ds.shape} {dt} in {where}:/steps/deformed")
+    out = np.empty(ds.shape, dtype=dt.newbyteorder("="))
+    for k in range(ds.shape[0]):
+        out[k] = ds[k]
+        if not np.isfinite(out[k]).all():
+            raise FormatError(f"steps/deformed must be finite; step {k} holds NaN or Inf in {where}:/steps/deformed")
+    return out
+
+
+def read_result(path) -> DeformResult:
+    """Read and validate a deform result file.
+
+    Raises
+    ------
+    FormatError
+        Not a result file (no ``steps/frame``), or a per-step dataset with the wrong
+        shape, range or non-finite values; the message names ``file:/steps/<name>``.
+    """
+    where = str(path)
+    with open_h5(path) as f:
+        g = f.get("steps")
+        if not isinstance(g, h5py.Group) or "frame" not in g:
+            raise FormatError(f"{where} is not a deform result; missing dataset steps/frame in {where}:/steps/frame")
+        seq = read_from_h5(f, where)
+        seq.validate()
+        steps = _read_group(g, where, skip_deformed=True)
+        if "deformed" in g:
+            steps["deformed"] = _read_deformed(g["deformed"], where)
+        attrs = read_attrs(f)
+        groups = {k: _read_group(obj, where) for k, obj in f.items()
+                  if isinstance(obj, h5py.Group) and k not in SEQUENCE_NAMES}
+    _check_steps(steps, seq.n_frames, seq.n_vertices, where)
+    steps["frame"] = steps["frame"].astype(np.int64)
+    return DeformResult(sequence=seq, steps=steps, attrs=attrs, groups=groups, origin=where)
+
+
+def is_result_file(path) -> bool:
+    """True if `path` is a readable HDF5 file with ``steps/frame`` (never raises)."""
+    try:
+        if not has_h5_magic(path):
+            return False
+        with h5py.File(path, "r") as f:
+            return isinstance(f.get("steps/frame"), h5py.Dataset)
+    except Exception:  # any unreadable file is simply not a result file
+        return False

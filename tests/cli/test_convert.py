@@ -1,0 +1,124 @@
+"""``penfree convert``: every format pair it is meant for, overwrite rules, input safety, atomicity."""
+
+import os
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from penfree.cli import main
+from penfree.formats import read_sequence, write_sequence
+from penfree.sequence import Sequence
+
+
+def _seq(dtype=np.float32):
+    rng = np.random.default_rng(23)
+    return Sequence(positions=rng.random((3, 5, 3)).astype(dtype), faces=np.array([[0, 1, 2], [2, 3, 4]]),
+                    edges=np.array([[0, 4]]), thickness=0.05, dt=0.02, source="conv").validate()
+
+
+def _run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def _snapshot(d):
+    out = {}
+    for root, _, files in os.walk(d):
+        for n in files:
+            p = os.path.join(root, n)
+            out[os.path.relpath(p, d)] = (open(p, "rb").read(), os.stat(p).st_mtime_ns)
+    return out
+
+
+OUTPUTS = {
+    "npz": ("out.npz", "out.npz"),
+    "xdmf": ("out.xdmf", "out.xdmf"),
+    "ply-pattern": ("mesh/A%08d.ply", "mesh/A%08d.ply"),
+    "obj-dir": ("objs/frame_0000.obj", "objs/frame_%04d.obj"),
+    "hdf5": ("again.h5", "again.h5"),
+}
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64], ids=["float32", "float64"])
+@pytest.mark.parametrize("target", list(OUTPUTS))
+def test_convert_and_back(tmp_path, target, dtype):
+    src = tmp_path / "in.h5"
+    seq = _seq(dtype)
+    write_sequence(src, seq)
+    before = _snapshot(tmp_path)
+    out, read_as = OUTPUTS[target]
+    r = _run("convert", src, tmp_path / out)
+    assert r.exit_code == 0, r.output
+    assert "wrote" in r.stdout and "3 frames, 5 vertices" in r.stdout
+    assert {k: v for k, v in _snapshot(tmp_path).items() if k in before} == before  # input untouched
+    back = read_sequence(tmp_path / read_as)
+    assert back.positions.dtype == dtype
+    np.testing.assert_array_equal(back.positions, seq.positions)
+    np.testing.assert_array_equal(back.faces, seq.faces)
+    np.testing.assert_array_equal(back.edges, seq.edges)
+    # and back to HDF5
+    r = _run("convert", tmp_path / read_as, tmp_path / "back.h5")
+    assert r.exit_code == 0, r.output
+    np.testing.assert_array_equal(read_sequence(tmp_path / "back.h5").positions, seq.positions)
+    assert not [n for n in os.listdir(tmp_path) if ".tmp-" in n]
+
+
+def test_format_options(tmp_path):
+    src = tmp_path / "in.h5"
+    write_sequence(src, _seq())
+    (tmp_path / "in.h5").rename(tmp_path / "in.bin")
+    r = _run("convert", tmp_path / "in.bin", tmp_path / "meshes", "--from-format", "hdf5", "--format", "meshseq")
+    assert r.exit_code == 0, r.output
+    assert sorted(os.listdir(tmp_path / "meshes")) == ["frame_0000.ply", "frame_0001.ply", "frame_0002.ply"]
+    r = _run("convert", tmp_path / "in.bin", tmp_path / "x.dat")
+    assert r.exit_code == 2 and "cannot tell the format of" in r.stderr and "x.dat" in r.stderr
+
+
+def test_existing_output_needs_overwrite(tmp_path):
+    src, dst = tmp_path / "in.h5", tmp_path / "out.npz"
+    write_sequence(src, _seq())
+    dst.write_bytes(b"precious")
+    r = _run("convert", src, dst)
+    assert r.exit_code == 2 and "exists" in r.stderr and "--overwrite" in r.stderr
+    assert dst.read_bytes() == b"precious"
+    r = _run("convert", src, dst, "--overwrite")
+    assert r.exit_code == 0, r.output
+    assert read_sequence(dst).n_frames == 3
+
+
+def test_existing_heavy_data_counts_as_output(tmp_path):
+    src = tmp_path / "in.h5"
+    write_sequence(src, _seq())
+    (tmp_path / "out.xdmf.h5").write_bytes(b"precious")
+    r = _run("convert", src, tmp_path / "out.xdmf")
+    assert r.exit_code == 2 and "out.xdmf.h5 exists" in r.stderr
+    assert sorted(os.listdir(tmp_path)) == ["in.h5", "out.xdmf.h5"]
+
+
+@pytest.mark.parametrize("out", ["in.h5", "./in.h5", "in.xdmf.h5"], ids=["same", "same-spelled-differently", "xdmf-heavy-data"])
+def test_output_may_not_be_an_input(tmp_path, out):
+    src = tmp_path / "in.h5"
+    write_sequence(src, _seq())
+    write_sequence(tmp_path / "in.xdmf", _seq())
+    inp = tmp_path / ("in.xdmf" if out == "in.xdmf.h5" else "in.h5")
+    before = _snapshot(tmp_path)
+    r = _run("convert", inp, str(tmp_path / out), "--overwrite")
+    assert r.exit_code == 2 and "is also an input" in r.stderr
+    assert _snapshot(tmp_path) == before
+
+
+def test_failure_midway_leaves_no_file(tmp_path, monkeypatch):
+    import penfree.formats.hdf5 as hdf5
+
+    src = tmp_path / "in.npz"
+    write_sequence(src, _seq())
+    real = hdf5.write_positions
+
+    def boom(*a, **k):
+        real(*a, **k)
+        raise KeyboardInterrupt  # Ctrl-C after the positions were written
+
+    monkeypatch.setattr(hdf5, "write_positions", boom)
+    r = _run("convert", src, tmp_path / "out.h5")
+    assert r.exit_code == 130 and "no output written" in r.stderr
+    assert sorted(os.listdir(tmp_path)) == ["in.npz"]

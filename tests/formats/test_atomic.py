@@ -1,0 +1,106 @@
+"""Atomic outputs: nothing half-written, nothing replaced without overwrite, inputs refused."""
+
+import os
+
+import pytest
+
+from penfree.errors import InputError, OutputExistsError
+from penfree.formats.atomic import atomic_dir, atomic_file, check_output, output_exists
+
+
+def _listing(d):
+    return sorted(os.listdir(d))
+
+
+def test_atomic_file_renames_on_success(tmp_path):
+    target = tmp_path / "out.bin"
+    with atomic_file(target) as tmp:
+        assert os.path.dirname(tmp) == str(tmp_path)
+        assert os.path.basename(tmp).startswith(".out.bin.tmp-")
+        with open(tmp, "w") as fh:
+            fh.write("new")
+        assert not target.exists()  # nothing visible before the end
+    assert target.read_text() == "new"
+    assert _listing(tmp_path) == ["out.bin"]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert os.stat(target).st_mode & 0o777 == 0o666 & ~umask  # the usual mode, not mkstemp's 0600
+
+
+@pytest.mark.parametrize("exc", [RuntimeError, KeyboardInterrupt], ids=["error", "ctrl-c"])
+def test_atomic_file_cleans_up_and_keeps_old(tmp_path, exc):
+    target = tmp_path / "out.bin"
+    target.write_text("old")
+    with pytest.raises(exc):
+        with atomic_file(target, overwrite=True) as tmp:
+            with open(tmp, "w") as fh:
+                fh.write("half")
+            raise exc()
+    assert target.read_text() == "old"
+    assert _listing(tmp_path) == ["out.bin"]
+
+
+def test_atomic_file_refuses_existing_without_overwrite(tmp_path):
+    target = tmp_path / "out.bin"
+    target.write_text("old")
+    with pytest.raises(OutputExistsError, match="out.bin exists"):
+        with atomic_file(target):
+            pass  # pragma: no cover
+    assert target.read_text() == "old"
+    assert _listing(tmp_path) == ["out.bin"]
+
+
+def test_atomic_file_creates_parent_dirs(tmp_path):
+    target = tmp_path / "a" / "b" / "out.txt"
+    with atomic_file(target) as tmp:
+        open(tmp, "w").write("x")
+    assert target.read_text() == "x"
+
+
+def test_atomic_dir_swaps_and_cleans(tmp_path):
+    out = tmp_path / "rep"
+    with atomic_dir(out) as tmp:
+        (open(os.path.join(tmp, "a.md"), "w")).write("1")
+    assert _listing(out) == ["a.md"]
+    with pytest.raises(OutputExistsError):
+        with atomic_dir(out):
+            pass  # pragma: no cover
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_dir(out, overwrite=True) as tmp:
+            open(os.path.join(tmp, "b.md"), "w").write("2")
+            raise KeyboardInterrupt
+    assert _listing(out) == ["a.md"] and _listing(tmp_path) == ["rep"]
+    with atomic_dir(out, overwrite=True) as tmp:
+        open(os.path.join(tmp, "b.md"), "w").write("2")
+    assert _listing(out) == ["b.md"] and _listing(tmp_path) == ["rep"]
+
+
+def test_check_output(tmp_path):
+    inp = tmp_path / "in.h5"
+    inp.write_text("x")
+    with pytest.raises(InputError, match="is also an input"):
+        check_output(inp, overwrite=True, inputs=[str(inp)])
+    # the same file under another spelling
+    with pytest.raises(InputError, match="is also an input"):
+        check_output(str(tmp_path / "." / "in.h5"), overwrite=True, inputs=[str(inp)])
+    with pytest.raises(OutputExistsError):
+        check_output(inp, overwrite=False)
+    check_output(inp, overwrite=True)
+    check_output(tmp_path / "new.h5", overwrite=False, inputs=[str(inp)])
+
+
+def test_output_exists_understands_printf_patterns(tmp_path):
+    pattern = str(tmp_path / "A%04d.ply")
+    assert not output_exists(pattern)
+    (tmp_path / "A0003.ply").write_text("")
+    assert output_exists(pattern)
+    with pytest.raises(OutputExistsError):
+        check_output(pattern)
+
+
+@pytest.mark.parametrize("ctx", [atomic_file, atomic_dir], ids=["file", "dir"])
+def test_uncreatable_output_is_an_input_error(tmp_path, ctx):
+    (tmp_path / "plain").write_text("a file, not a directory")
+    with pytest.raises(InputError, match="cannot create output"):
+        with ctx(tmp_path / "plain" / "out"):
+            pass  # pragma: no cover

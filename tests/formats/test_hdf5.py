@@ -1,0 +1,148 @@
+"""HDF5 layout v1: round trips, files written by others, and refused inputs."""
+
+import os
+
+import h5py
+import numpy as np
+import pytest
+
+from penfree.errors import FormatError, InputError, OutputExistsError
+from penfree.formats import read_sequence, write_sequence
+from penfree.sequence import Obstacle, Sequence
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(7)
+
+
+def _scene(rng, dtype, kind="triangles"):
+    topo = dict(faces=np.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]])) if kind == "triangles" else \
+        dict(edges=np.array([[0, 1], [1, 2], [2, 3], [3, 4]]))
+    return Sequence(
+        positions=(rng.standard_normal((4, 5, 3)) * 10 + 1e4).astype(dtype), weights=rng.random(5) + 0.1,
+        components=np.array([0, 0, 1, 1, 1]), thickness=1e-3, dt=1 / 60, source="unit test",
+        attrs={"flag": True, "count": 3, "scale": 0.5, "meta": {"solver": "ogc", "iters": [1, 2]},
+               "none": None, "tricky": "json:not json"},
+        obstacles=[Obstacle("floor", rng.random((4, 3)), faces=np.array([[0, 1, 2], [0, 2, 3]])),
+                   Obstacle("pin", rng.random((4, 2, 3)), edges=np.array([[0, 1]]))],
+        **topo,
+    )
+
+
+@pytest.mark.parametrize("kind", ["triangles", "segments"])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64], ids=["float32", "float64"])
+def test_round_trip(tmp_path, rng, dtype, kind):
+    seq = _scene(rng, dtype, kind).validate()
+    path = str(tmp_path / "frames.h5")
+    write_sequence(path, seq)
+    back = read_sequence(path)
+    assert back.positions.dtype == dtype
+    np.testing.assert_array_equal(back.positions, seq.positions)
+    for name in ("edges", "faces", "weights", "components"):
+        a, b = getattr(seq, name), getattr(back, name)
+        assert (a is None) == (b is None)
+        if a is not None:
+            np.testing.assert_array_equal(a, b)
+    assert (back.thickness, back.dt, back.source, back.origin) == (seq.thickness, seq.dt, seq.source, path)
+    assert back.attrs == seq.attrs
+    assert [o.name for o in back.obstacles] == ["floor", "pin"]
+    np.testing.assert_array_equal(back.obstacles[0].positions, seq.obstacles[0].positions)
+    np.testing.assert_array_equal(back.obstacles[1].edges, [[0, 1]])
+    with h5py.File(path) as f:
+        assert f["positions"].chunks == (1, 5, 3)
+        assert f.attrs["penfree_format"] == 1
+
+
+def test_reads_a_minimal_foreign_file(tmp_path, rng):
+    """Written by someone else: int32 topology, float32, no attrs, contact_radius alias, odd extension."""
+    path = str(tmp_path / "sim.dat")
+    pos = rng.random((3, 4, 3)).astype(np.float32)
+    with h5py.File(path, "w") as f:
+        f["positions"] = pos
+        f["edges"] = np.array([[0, 1], [2, 3]], dtype=np.int32)
+        f.attrs["contact_radius"] = 0.25
+        f.attrs["note"] = np.bytes_(b"bytes attr")
+    seq = read_sequence(path)  # recognised by content, not by name
+    assert seq.positions.dtype == np.float32 and seq.edges.dtype == np.int64
+    assert seq.thickness == 0.25 and seq.dt is None and seq.kind == "segments"
+    assert seq.attrs == {"note": "bytes attr"}
+
+
+def test_existing_output_needs_overwrite(tmp_path, rng):
+    seq = _scene(rng, np.float64).validate()
+    path = tmp_path / "o.h5"
+    write_sequence(path, seq)
+    before = path.read_bytes()
+    seq.positions = seq.positions + 1
+    with pytest.raises(OutputExistsError):
+        write_sequence(path, seq)
+    assert path.read_bytes() == before
+    write_sequence(path, seq, overwrite=True)
+    np.testing.assert_array_equal(read_sequence(path).positions, seq.positions)
+    assert sorted(os.listdir(tmp_path)) == ["o.h5"]
+
+
+def test_writer_failure_leaves_no_file(tmp_path, rng, monkeypatch):
+    import penfree.formats.hdf5 as hdf5
+
+    def boom(*a, **k):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(hdf5, "write_to_h5", boom)
+    with pytest.raises(RuntimeError):
+        write_sequence(tmp_path / "o.h5", _scene(rng, np.float32))
+    assert os.listdir(tmp_path) == []
+
+
+def _write(path, **datasets):
+    attrs = datasets.pop("attrs", {})
+    with h5py.File(path, "w") as f:
+        for k, v in datasets.items():
+            f[k] = v
+        for k, v in attrs.items():
+            f.attrs[k] = v
+
+
+GOOD = np.zeros((3, 4, 3))
+
+
+@pytest.mark.parametrize("build,exc,expect", [
+    (lambda p: open(p, "w").write("not hdf5 at all"), FormatError, "is not an HDF5 file"),
+    (lambda p: _write(p, edges=[[0, 1]]), FormatError, "missing dataset positions (T, N, 3) in {p}:/positions"),
+    (lambda p: _write(p, positions=np.zeros((3, 4))), FormatError, "positions must be (T, N, 3); got (3, 4) in {p}:/positions"),
+    (lambda p: _write(p, positions=np.zeros((1, 4, 3))), InputError, "at least 2 frames; got 1 in {p}:/positions"),
+    (lambda p: _write(p, positions=np.where(np.arange(36).reshape(3, 4, 3) == 20, np.inf, 0.0)), InputError,
+     "frame 1 holds NaN or Inf in {p}:/positions"),
+    (lambda p: _write(p, positions=GOOD, faces=[[0, 1, 4]]), InputError, "found 4 in {p}:/faces"),
+    (lambda p: _write(p, positions=GOOD, edges=[[0, -2]]), InputError, "found -2 in {p}:/edges"),
+    (lambda p: _write(p, positions=GOOD, faces=[[0, 1, 2, 3]]), InputError, "faces must be (M, 3); got (1, 4) in {p}:/faces"),
+    (lambda p: _write(p, positions=GOOD, weights=np.ones(5)), InputError, "weights must be (4,) to match positions; got (5,) in {p}:/weights"),
+    (lambda p: _write(p, positions=GOOD, weights=-np.ones(4)), InputError, "weights must be finite and >= 0; got min -1 in {p}:/weights"),
+    (lambda p: _write(p, positions=GOOD, attrs={"penfree_format": 2}), FormatError, "unsupported penfree_format 2 in {p}:@penfree_format"),
+    (lambda p: _write(p, positions=GOOD, attrs={"thickness": "thin"}), InputError, "thickness must be a finite number"),
+    (lambda p: _write(p, positions=np.array([[[b"a"] * 3] * 4] * 2)), FormatError, "positions must be float32 or float64"),
+], ids=["not-hdf5", "missing-positions", "wrong-shape", "one-frame", "inf-frame-1", "index-out-of-range",
+        "negative-index", "faces-4-columns", "weights-length", "negative-weights", "format-version-2",
+        "text-thickness", "text-positions"])
+def test_bad_inputs(tmp_path, build, exc, expect):
+    p = str(tmp_path / "bad.h5")
+    build(p)
+    with pytest.raises(exc) as err:
+        read_sequence(p)
+    assert expect.format(p=p) in str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_truncated_file(tmp_path, rng):
+    p = tmp_path / "cut.h5"
+    write_sequence(p, _scene(rng, np.float64))
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) // 2])
+    with pytest.raises(FormatError, match=f"{p} is a truncated or damaged HDF5 file"):
+        read_sequence(p)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(InputError, match="no such file"):
+        read_sequence(tmp_path / "nope.h5")

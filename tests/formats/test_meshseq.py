@@ -1,0 +1,192 @@
+"""Numbered mesh-file sequences: ways to name them, PLY/OBJ/VTU round trips, OBJ polylines, refusals."""
+
+import os
+
+import numpy as np
+import pytest
+
+from penfree.errors import FormatError, InputError, OutputExistsError
+from penfree.formats import read_sequence, write_sequence
+from penfree.formats import meshseq
+from penfree.formats.meshseq import frame_files, output_pattern
+from penfree.formats.obj import read_obj
+from penfree.sequence import Sequence
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(3)
+
+
+def _seq(rng, dtype=np.float64, T=3, faces=True, edges=True):
+    return Sequence(
+        positions=rng.standard_normal((T, 5, 3)).astype(dtype),
+        faces=np.array([[0, 1, 2], [1, 3, 2]]) if faces else None,
+        edges=np.array([[3, 4], [4, 0]]) if edges else None,
+    ).validate()
+
+
+@pytest.mark.parametrize("ext", ["ply", "obj", "vtu"])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64], ids=["float32", "float64"])
+def test_round_trip(tmp_path, rng, ext, dtype):
+    seq = _seq(rng, dtype)
+    pattern = str(tmp_path / "out" / f"A%08d.{ext}")
+    write_sequence(pattern, seq)
+    assert sorted(os.listdir(tmp_path / "out")) == [f"A{s:08d}.{ext}" for s in range(3)]
+    back = read_sequence(pattern)
+    assert back.positions.dtype == dtype
+    np.testing.assert_array_equal(back.positions, seq.positions)
+    np.testing.assert_array_equal(back.faces, seq.faces)
+    np.testing.assert_array_equal(back.edges, seq.edges)
+
+
+@pytest.mark.parametrize("ext", ["ply", "obj", "vtu", "vtk"])
+def test_points_only(tmp_path, rng, ext):
+    seq = _seq(rng, faces=False, edges=False)
+    write_sequence(str(tmp_path / f"p_%02d.{ext}"), seq)
+    back = read_sequence(str(tmp_path / f"p_%02d.{ext}"))
+    assert back.kind == "points"
+    np.testing.assert_array_equal(back.positions, seq.positions)
+
+
+def test_ways_to_name_a_sequence(tmp_path, rng):
+    seq = _seq(rng, T=12)
+    d = tmp_path / "frames"
+    write_sequence(str(d) + os.sep, seq)  # a directory -> frame_%04d.ply
+    expected = [str(d / f"frame_{s:04d}.ply") for s in range(12)]
+    assert frame_files(str(d)) == expected
+    assert frame_files(str(d / "frame_%04d.ply")) == expected
+    assert frame_files(str(d / "frame_*.ply")) == expected
+    assert frame_files(str(d / "frame_0005.ply")) == expected  # siblings of one numbered file
+    for path in (str(d), str(d / "frame_*.ply"), str(d / "frame_0000.ply")):
+        np.testing.assert_array_equal(read_sequence(path).positions, seq.positions)
+
+
+def test_numeric_not_lexicographic_order(tmp_path, rng):
+    seq = _seq(rng, T=11, faces=False)
+    for s in range(11):  # unpadded numbers: frame_10 sorts after frame_9
+        meshseq._write_mesh(str(tmp_path / f"frame_{s}.obj"), seq.positions[s], seq.edges, None)
+    back = read_sequence(str(tmp_path / "frame_*.obj"))
+    np.testing.assert_array_equal(back.positions, seq.positions)
+    np.testing.assert_array_equal(read_sequence(str(tmp_path / "frame_%d.obj")).positions, seq.positions)
+
+
+@pytest.mark.parametrize("path,pattern", [
+    ("out/", "out/frame_%04d.ply"),
+    ("out/cloth.obj", "out/cloth_%04d.obj"),
+    ("out/frame_0001.vtu", "out/frame_%04d.vtu"),
+    ("out/B%06d.ply", "out/B%06d.ply"),
+], ids=["directory", "plain-name", "numbered-name", "pattern"])
+def test_output_pattern(path, pattern):
+    assert output_pattern(path.replace("/", os.sep)) == pattern.replace("/", os.sep)
+
+
+OBJ_HANDWRITTEN = """# exported by a rod simulator
+o rod
+v 0 0 0
+v 1 0 0
+v 2 0 0 1.0
+v 3 0 0
+vt 0 0
+l 1 2 3
+l -2 -1
+f 1/1/1 2/1/1 3/1/1 4/1/1
+"""
+
+
+def test_obj_polylines_quads_and_relative_indices(tmp_path):
+    p = tmp_path / "rod_0001.obj"
+    p.write_text(OBJ_HANDWRITTEN)
+    pts, edges, faces = read_obj(str(p))
+    assert pts.dtype == np.float64 and pts.shape == (4, 3)
+    assert edges.tolist() == [[0, 1], [1, 2], [2, 3]]  # polyline 1-2-3 and relative "l -2 -1"
+    assert faces.tolist() == [[0, 1, 2], [0, 2, 3]]  # quad as a fan
+    q = tmp_path / "rod_0002.obj"
+    q.write_text(OBJ_HANDWRITTEN.replace("v 3 0 0", "v 3 1 0"))
+    seq = read_sequence(str(p))
+    assert seq.n_frames == 2 and seq.kind == "triangles"
+    np.testing.assert_array_equal(seq.positions[1, 3], [3, 1, 0])
+
+
+@pytest.mark.parametrize("text,expect", [
+    ("v 0 0\n", "expected 'v x y z'"),
+    ("v 0 0 0\nl 1 x\n", "bad vertex index 'x' on line 2"),
+    ("v 0 0 0\nl 0 1\n", "vertex index 0 on line 2"),
+    ("# nothing\n", "holds no vertices"),
+], ids=["short-vertex", "text-index", "zero-index", "empty"])
+def test_obj_refusals(tmp_path, text, expect):
+    p = tmp_path / "f_1.obj"
+    p.write_text(text)
+    with pytest.raises(FormatError, match=expect):
+        read_obj(str(p))
+
+
+def test_vertex_count_mismatch_names_first_bad_file(tmp_path, rng):
+    seq = _seq(rng, T=4)
+    write_sequence(str(tmp_path / "f_%02d.obj"), seq)
+    (tmp_path / "f_02.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(InputError, match=r"frame 2 has 3 vertices.*f_02\.obj"):
+        read_sequence(str(tmp_path / "f_%02d.obj"))
+
+
+def test_topology_mismatch_names_first_bad_file(tmp_path, rng):
+    seq = _seq(rng, T=3)
+    write_sequence(str(tmp_path / "f_%02d.ply"), seq)
+    other = Sequence(positions=seq.positions, faces=np.array([[0, 1, 2], [1, 3, 4]]), edges=seq.edges).validate()
+    meshseq._write_mesh(str(tmp_path / "f_01.ply"), other.positions[1], other.edges, other.faces)
+    with pytest.raises(InputError, match=r"frame 1 has a different topology.*f_01\.ply"):
+        read_sequence(str(tmp_path / "f_%02d.ply"))
+
+
+def test_unreadable_mesh_file_is_named_and_silent(tmp_path, rng, capsys):
+    write_sequence(str(tmp_path / "f_%02d.ply"), _seq(rng))
+    (tmp_path / "f_01.ply").write_text("garbage")
+    with pytest.raises(FormatError, match=r"cannot read mesh file .*f_01\.ply"):
+        read_sequence(str(tmp_path / "f_00.ply"))
+    out = capsys.readouterr()
+    assert out.out == "" and out.err == ""  # meshio's console chatter is swallowed
+
+
+@pytest.mark.parametrize("make,expect", [
+    (lambda d: (d / "a_0001.ply").write_text(""), "a sequence needs at least 2 frames"),
+    (lambda d: [(d / n).write_text("") for n in ("a_1.ply", "a_2.ply", "b_1.obj", "b_2.obj")],
+     "holds several numbered series"),
+    (lambda d: (d / "notes.txt").write_text(""), "holds no numbered mesh files"),
+], ids=["one-file", "two-series", "no-mesh"])
+def test_directory_refusals(tmp_path, make, expect):
+    make(tmp_path)
+    with pytest.raises(InputError, match=expect):
+        read_sequence(str(tmp_path), format="meshseq")
+
+
+def test_existing_frames_need_overwrite_and_stale_frames_go(tmp_path, rng):
+    pattern = str(tmp_path / "f_%04d.obj")
+    write_sequence(pattern, _seq(rng, T=5))
+    (tmp_path / "keep.txt").write_text("mine")
+    with pytest.raises(OutputExistsError):
+        write_sequence(pattern, _seq(rng, T=3))
+    assert len(os.listdir(tmp_path)) == 6
+    short = _seq(rng, T=3)
+    write_sequence(pattern, short, overwrite=True)
+    assert sorted(os.listdir(tmp_path)) == ["f_0000.obj", "f_0001.obj", "f_0002.obj", "keep.txt"]
+    np.testing.assert_array_equal(read_sequence(pattern).positions, short.positions)
+
+
+@pytest.mark.parametrize("fresh", [True, False], ids=["new-directory", "existing-directory"])
+def test_failure_midway_leaves_nothing(tmp_path, rng, monkeypatch, fresh):
+    out = tmp_path / "out"
+    if not fresh:
+        out.mkdir()
+    real, calls = meshseq._write_mesh, []
+
+    def flaky(path, *a):
+        calls.append(path)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        real(path, *a)
+
+    monkeypatch.setattr(meshseq, "_write_mesh", flaky)
+    with pytest.raises(KeyboardInterrupt):
+        write_sequence(str(out / "f_%04d.ply"), _seq(rng))
+    assert os.listdir(tmp_path) == ([] if fresh else ["out"])
+    assert not out.exists() or os.listdir(out) == []

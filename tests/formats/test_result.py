@@ -1,0 +1,140 @@
+"""Deform result files: round trip, strings and JSON attrs, validation on read, atomic write."""
+
+import os
+
+import h5py
+import numpy as np
+import pytest
+
+from penfree import __version__
+from penfree.errors import FormatError, OutputExistsError
+from penfree.formats import read_sequence
+from penfree.formats import result as result_mod
+from penfree.formats.result import is_result_file, read_result, write_result
+from penfree.sequence import Sequence
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(13)
+
+
+def _inputs(rng, dtype=np.float32, T=5, N=6):
+    seq = Sequence(positions=rng.random((T, N, 3)).astype(dtype), edges=np.array([[i, i + 1] for i in range(N - 1)]),
+                   weights=np.ones(N), thickness=0.01, attrs={"scene": "rods"}).validate()
+    S = T - 1
+    steps = {
+        "frame": np.arange(1, T),
+        "A": np.tile(np.eye(3), (S, 1, 1)) + rng.standard_normal((S, 3, 3)) * 1e-3,
+        "b": rng.standard_normal((S, 3)),
+        "deformed": rng.random((S, N, 3)),  # float64 on purpose: stored in the input dtype
+        "model": np.array(["affine", "rigid", "affine", "translation"][:S]),
+        "projection": np.array(["none", "sym", "svd", "none"][:S], dtype=object),
+        "certificate_margin": np.array([0.9, 0.8, np.nan, 1.0][:S]),
+        "rank": np.array([3, 3, 2, 1][:S]),
+        "residual_next_rms": np.array([1.0, 2.0, 3.0, np.nan][:S]),
+    }
+    attrs = {"input": "rods.h5", "options": {"model": "affine", "margin": 0.0, "weights": None}, "overwrite": False}
+    groups = {"stats": {"hit_rate": np.linspace(0, 1, S), "K_any": np.arange(S)},
+              "selection": {"ladder": {"models": np.array(["rigid", "affine"]), "rms": np.array([1.0, 0.5])}}}
+    return seq, steps, attrs, groups
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64], ids=["float32", "float64"])
+def test_round_trip(tmp_path, rng, dtype):
+    seq, steps, attrs, groups = _inputs(rng, dtype)
+    p = tmp_path / "deformed.h5"
+    write_result(p, seq, steps, attrs, groups=groups)
+    assert is_result_file(p)
+    res = read_result(p)
+    assert res.n_steps == 4 and res.origin == str(p)
+    np.testing.assert_array_equal(res.sequence.positions, seq.positions)
+    assert res.sequence.positions.dtype == dtype
+    assert res.steps["deformed"].dtype == dtype
+    np.testing.assert_array_equal(res.steps["deformed"], steps["deformed"].astype(dtype))
+    np.testing.assert_array_equal(res.steps["A"], steps["A"])
+    assert res.steps["frame"].dtype == np.int64
+    assert res.steps["model"].dtype.kind == "U" and res.steps["model"].tolist() == steps["model"].tolist()
+    assert res.steps["projection"].tolist() == ["none", "sym", "svd", "none"]
+    np.testing.assert_array_equal(res.steps["certificate_margin"], steps["certificate_margin"])  # NaN kept
+    assert res.attrs["options"] == attrs["options"] and res.attrs["overwrite"] is False
+    assert res.attrs["penfree_format"] == 1 and res.attrs["penfree_version"] == __version__
+    assert res.groups["stats"]["K_any"].tolist() == [0, 1, 2, 3]
+    assert res.groups["selection"]["ladder"]["models"].tolist() == ["rigid", "affine"]
+    with h5py.File(p) as f:
+        assert f["steps/deformed"].chunks == (1, 6, 3)
+        assert h5py.check_string_dtype(f["steps/model"].dtype).encoding == "utf-8"
+    # the result is also a plain layout-v1 sequence file: its input
+    back = read_sequence(p)
+    np.testing.assert_array_equal(back.positions, seq.positions)
+    np.testing.assert_array_equal(back.edges, seq.edges)
+
+
+def test_plain_sequence_is_not_a_result(tmp_path, rng):
+    from penfree.formats import write_sequence
+
+    seq, *_ = _inputs(rng)
+    write_sequence(tmp_path / "in.h5", seq)
+    (tmp_path / "text.h5").write_text("hello")
+    assert not is_result_file(tmp_path / "in.h5")
+    assert not is_result_file(tmp_path / "text.h5")
+    assert not is_result_file(tmp_path / "missing.h5")
+    with pytest.raises(FormatError, match=r"not a deform result; missing dataset steps/frame in .*in\.h5:/steps/frame"):
+        read_result(tmp_path / "in.h5")
+
+
+def _tamper(path, name, value):
+    with h5py.File(path, "a") as f:
+        del f[name]
+        f[name] = value
+
+
+@pytest.mark.parametrize("name,value,expect", [
+    ("steps/frame", np.array([1, 2, 3, 5]), "steps/frame must be in [1, 4] for 5 frames; found 5 in {p}:/steps/frame"),
+    ("steps/frame", np.array([0, 1, 2, 3]), "found 0 in {p}:/steps/frame"),
+    ("steps/A", np.zeros((4, 3, 2)), "steps/A must be (4, 3, 3); got (4, 3, 2) in {p}:/steps/A"),
+    ("steps/b", np.zeros((3, 3)), "steps/b must be (4, 3); got (3, 3) in {p}:/steps/b"),
+    ("steps/deformed", np.zeros((4, 5, 3)), "steps/deformed must be (4, 6, 3); got (4, 5, 3) in {p}:/steps/deformed"),
+    ("steps/deformed", np.where(np.arange(72).reshape(4, 6, 3) == 40, np.nan, 0.0),
+     "step 2 holds NaN or Inf in {p}:/steps/deformed"),
+    ("steps/rank", np.zeros(7), "steps/rank must have one row per step (4)"),
+], ids=["frame-too-big", "frame-zero", "A-shape", "b-rows", "deformed-vertices", "deformed-nan", "short-column"])
+def test_read_validates(tmp_path, rng, name, value, expect):
+    seq, steps, attrs, _ = _inputs(rng)
+    p = str(tmp_path / "r.h5")
+    write_result(p, seq, steps, attrs)
+    _tamper(p, name, value)
+    with pytest.raises(FormatError) as err:
+        read_result(p)
+    assert expect.format(p=p) in str(err.value)
+
+
+def test_write_refuses_bad_steps_and_existing_output(tmp_path, rng):
+    seq, steps, attrs, _ = _inputs(rng)
+    p = tmp_path / "r.h5"
+    with pytest.raises(FormatError, match="steps/b must be"):
+        write_result(p, seq, dict(steps, b=np.zeros((4, 2))), attrs)
+    assert not p.exists()
+    write_result(p, seq, steps, attrs)
+    before = p.read_bytes()
+    with pytest.raises(OutputExistsError):
+        write_result(p, seq, steps, attrs)
+    assert p.read_bytes() == before
+    write_result(p, seq, steps, dict(attrs, input="other.h5"), overwrite=True)
+    assert read_result(p).attrs["input"] == "other.h5"
+
+
+@pytest.mark.parametrize("exc", [RuntimeError, KeyboardInterrupt], ids=["error", "ctrl-c"])
+def test_write_failure_midway_leaves_nothing(tmp_path, rng, monkeypatch, exc):
+    seq, steps, attrs, groups = _inputs(rng)
+    real = result_mod._write_array
+
+    def flaky(g, name, *a, **k):
+        if name == "deformed":
+            raise exc()
+        return real(g, name, *a, **k)
+
+    monkeypatch.setattr(result_mod, "_write_array", flaky)
+    with pytest.raises(exc):
+        write_result(tmp_path / "r.h5", seq, steps, attrs, groups=groups)
+    assert os.listdir(tmp_path) == []

@@ -1,0 +1,131 @@
+"""XDMF time series: round trip, the XML ParaView needs to animate geometry, refusals."""
+
+import os
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+
+from penfree.errors import FormatError, InputError, OutputExistsError
+from penfree.formats import output_paths, read_sequence, write_sequence
+from penfree.formats import xdmf
+from penfree.sequence import Obstacle, Sequence
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(5)
+
+
+def _seq(rng, dtype=np.float64, topo="both"):
+    faces = np.array([[0, 1, 2], [1, 2, 3]]) if topo in ("both", "triangles") else None
+    edges = np.array([[0, 3], [3, 4]]) if topo in ("both", "segments") else None
+    return Sequence(
+        positions=rng.random((4, 5, 3)).astype(dtype), faces=faces, edges=edges,
+        weights=rng.random(5) + 1, components=np.arange(5) % 2, thickness=0.02, dt=0.25,
+        source="xdmf test", attrs={"solver": {"name": "vbd"}},
+        obstacles=[Obstacle("floor", rng.random((3, 3)), faces=np.array([[0, 1, 2]])),
+                   Obstacle("rod", rng.random((4, 2, 3)), edges=np.array([[0, 1]]))],
+    ).validate()
+
+
+@pytest.mark.parametrize("topo", ["both", "triangles", "segments", "points"])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64], ids=["float32", "float64"])
+def test_round_trip(tmp_path, rng, dtype, topo):
+    seq = _seq(rng, dtype, topo)
+    p = str(tmp_path / "anim.xdmf")
+    write_sequence(p, seq)
+    assert sorted(os.listdir(tmp_path)) == ["anim.xdmf", "anim.xdmf.h5"]
+    back = read_sequence(p)
+    assert back.positions.dtype == dtype
+    np.testing.assert_array_equal(back.positions, seq.positions)
+    for name in ("faces", "edges", "weights", "components"):
+        a, b = getattr(seq, name), getattr(back, name)
+        assert (a is None) == (b is None), name
+        if a is not None:
+            np.testing.assert_array_equal(a, b)
+    assert (back.thickness, back.dt, back.source, back.attrs) == (0.02, 0.25, "xdmf test", {"solver": {"name": "vbd"}})
+    assert [(o.name, o.positions.shape) for o in back.obstacles] == [("floor", (3, 3)), ("rod", (4, 2, 3))]
+    np.testing.assert_array_equal(back.obstacles[1].positions, seq.obstacles[1].positions)
+
+
+def test_xml_animates_geometry(tmp_path, rng):
+    """ParaView animates a Temporal collection whose grids each carry their own Geometry."""
+    seq = _seq(rng, topo="segments")
+    p = tmp_path / "anim.xdmf"
+    write_sequence(p, seq)
+    root = ET.parse(p).getroot()
+    main = root.find("Domain/Grid[@Name='penfree']")
+    assert main.get("GridType") == "Collection" and main.get("CollectionType") == "Temporal"
+    grids = main.findall("Grid")
+    assert [float(g.find("Time").get("Value")) for g in grids] == [0.0, 0.25, 0.5, 0.75]
+    refs = [g.find("Geometry/DataItem").text for g in grids]
+    assert len(set(refs)) == 4 and all(r.startswith("anim.xdmf.h5:/") for r in refs)
+    top = grids[0].find("Topology")
+    assert (top.get("TopologyType"), top.get("NodesPerElement"), top.get("NumberOfElements")) == ("Polyline", "2", "2")
+    assert {g.find("Topology/DataItem").text for g in grids} == {"anim.xdmf.h5:/main/edges"}
+
+
+def test_outputs_and_overwrite(tmp_path, rng):
+    p = str(tmp_path / "a.xdmf")
+    assert output_paths(p) == [p, p + ".h5"]
+    write_sequence(p, _seq(rng))
+    before = {n: (tmp_path / n).read_bytes() for n in os.listdir(tmp_path)}
+    with pytest.raises(OutputExistsError):
+        write_sequence(p, _seq(rng))
+    assert {n: (tmp_path / n).read_bytes() for n in os.listdir(tmp_path)} == before
+    write_sequence(p, _seq(rng), overwrite=True)
+
+
+def test_failure_midway_leaves_nothing(tmp_path, rng, monkeypatch):
+    real, calls = xdmf._collection, []
+
+    def flaky(*a, **k):
+        calls.append(1)
+        if len(calls) == 2:  # after the main grid, while writing obstacles
+            raise RuntimeError("boom")
+        return real(*a, **k)
+
+    monkeypatch.setattr(xdmf, "_collection", flaky)
+    with pytest.raises(RuntimeError):
+        write_sequence(tmp_path / "a.xdmf", _seq(rng))
+    assert os.listdir(tmp_path) == []
+
+
+def test_reads_meshio_time_series(tmp_path, rng, monkeypatch):
+    import meshio
+
+    monkeypatch.chdir(tmp_path)  # meshio's writer puts its .h5 in the working directory
+    pos = rng.random((3, 4, 3))
+    p = str(tmp_path / "ts.xdmf")
+    with meshio.xdmf.TimeSeriesWriter(p) as w:
+        w.write_points_cells(pos[0], [("triangle", np.array([[0, 1, 2], [1, 2, 3]]))])
+        for s in range(3):
+            w.write_data(float(s), point_data={"positions": pos[s]})
+    seq = read_sequence(p)
+    np.testing.assert_allclose(seq.positions, pos, rtol=0, atol=0)
+    np.testing.assert_array_equal(seq.faces, [[0, 1, 2], [1, 2, 3]])
+
+
+@pytest.mark.parametrize("text,exc,expect", [
+    ("not xml <", FormatError, "is not an XDMF (XML) file"),
+    ("<html><body/></html>", FormatError, "is XML but not XDMF"),
+    ("<Xdmf><Domain><Grid Name='x' GridType='Uniform'/></Domain></Xdmf>", FormatError, "no Temporal grid collection"),
+    ("<Xdmf><Domain><Information Name='penfree' Value='{broken'/>"
+     "<Grid Name='penfree' GridType='Collection' CollectionType='Temporal'/></Domain></Xdmf>",
+     FormatError, "is a malformed XDMF file"),
+], ids=["not-xml", "not-xdmf", "no-time-series", "broken-json"])
+def test_bad_xml(tmp_path, text, exc, expect):
+    p = tmp_path / "bad.xdmf"
+    p.write_text(text)
+    with pytest.raises(exc) as err:
+        read_sequence(p)
+    assert expect in str(err.value)
+
+
+def test_missing_heavy_data(tmp_path, rng):
+    p = tmp_path / "a.xdmf"
+    write_sequence(p, _seq(rng))
+    os.unlink(str(p) + ".h5")
+    with pytest.raises(InputError, match=r"no such file: .*a\.xdmf\.h5"):
+        read_sequence(p)
