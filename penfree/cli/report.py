@@ -1,0 +1,105 @@
+"""``penfree report FILE... -o DIR``: Markdown + JSON (+ PNG) report and CI checks."""
+
+import os
+
+import click
+
+from ..constants import DEFAULT_CD_SHARE, DEFAULT_FRAME_MS, DEFAULT_GAMMA
+from ..errors import InputError
+from .options import (
+    Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames, set_threads, threads_option,
+)
+
+
+@click.command("report")
+@click.argument("files", nargs=-1, required=True, metavar="FILE...", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", "outdir", required=True, type=click.Path(file_okay=False),
+              help="Report directory to write (report.md, report.json, *.png).")
+@overwrite_option
+@click.option("--cd-share", type=click.FloatRange(0.0, 1.0), default=DEFAULT_CD_SHARE, show_default=True,
+              help="Projected: fraction f of the frame time spent in collision detection.")
+@click.option("--frame-ms", type=click.FloatRange(min=0.0, min_open=True), default=DEFAULT_FRAME_MS,
+              show_default=True, help="Projected: baseline frame time T_frame in milliseconds.")
+@click.option("--replay", is_flag=True, help="Also estimate CD passes by replay (one bound query per pass).")
+@click.option("--no-ladder", is_flag=True, help="Skip the model ladder (re-fits every step with every model).")
+@click.option("--no-plots", is_flag=True, help="Do not write PNG plots.")
+@frames_option
+@threads_option
+@json_option
+@click.option("--fail-if-uncertified", is_flag=True, help="Check: every step's map is certified.")
+@click.option("--min-speedup", type=float, default=None, metavar="X",
+              help="Check: projected speedup (K_1pct rule) >= X.")
+@click.option("--min-hit-rate-gain", type=float, default=None, metavar="POINTS",
+              help="Check: hit rate vs the next frame gains >= POINTS percentage points (deformed - baseline).")
+@click.option("--baseline", "baseline_path", type=click.Path(), default=None, metavar="REPORT.json",
+              help="Check: compare with a stored report.json (needs --max-regression).")
+@click.option("--max-regression", type=click.FloatRange(min=0.0), default=None, metavar="PCT",
+              help="Check: K_1pct, projected speedup and hit rate regress by at most PCT percent vs --baseline.")
+def command(files, outdir, overwrite, cd_share, frame_ms, replay, no_ladder, no_plots, frames, threads, as_json,
+            fail_if_uncertified, min_speedup, min_hit_rate_gain, baseline_path, max_regression):
+    """Report trust-region statistics of `penfree deform` outputs, with optional CI checks.
+
+    Exit status: 0 all checks passed, 1 a check failed (the report is still written),
+    2 unusable input. Frame times and speedups are projected, never measured.
+
+    \b
+      penfree report deformed.h5 -o report/
+      penfree report deformed.h5 -o report/ --min-speedup 1.1 --fail-if-uncertified
+      penfree report deformed.h5 -o new/ --baseline old/report.json --max-regression 5
+    """
+    from ..formats.atomic import check_output
+    from ..formats.report import (
+        load_report_json, make_file_report, open_result, run_checks, select_steps, stored_stats, write_report,
+    )
+
+    if (baseline_path is None) != (max_regression is None):
+        raise InputError("--baseline and --max-regression go together; give both or neither")
+    check_output(outdir, overwrite, inputs=files)
+    frame_slice = parse_frames(frames)
+    set_threads(threads)
+    baseline = load_report_json(baseline_path) if baseline_path else None
+    results = [select_steps(open_result(path), frame_slice) for path in files]  # all inputs checked first
+
+    reports = []
+    for path, res in zip(files, results):
+        work = res.n_steps * ((stored_stats(res, replay) is None) + (not no_ladder))
+        with Progress(work, f"report {os.path.basename(path)}") as bar:
+            reports.append(make_file_report(path, res, cd_share=cd_share, frame_ms=frame_ms, replay=replay,
+                                            ladder=not no_ladder, progress=bar))
+    checks = run_checks(reports, fail_if_uncertified=fail_if_uncertified, min_speedup=min_speedup,
+                        min_hit_rate_gain=min_hit_rate_gain, baseline=baseline, max_regression=max_regression)
+    options = {"cd_share": cd_share, "frame_ms": frame_ms, "replay": replay, "ladder": not no_ladder,
+               "frames": frames, "gamma": DEFAULT_GAMMA}
+    doc = write_report(outdir, reports, overwrite, options=options, checks=checks, plots=not no_plots)
+    if as_json:
+        echo_json(doc)
+    else:
+        _print_summary(doc, outdir)
+    if not doc["all_checks_passed"]:
+        click.get_current_context().exit(1)
+
+
+def _fmt(v, spec):
+    return "n/a" if v is None else format(v, spec)
+
+
+def _print_summary(doc, outdir):
+    click.echo(f"penfree report -> {outdir}/report.md, report.json")
+    for rep in doc["files"]:
+        sm = rep["summary"]
+        b, d, p = sm["baseline"], sm["deformed"], sm["projected"]["k_1pct"]
+        hb, hd = (None if v is None else 100 * v for v in (b["hit_rate_next"], d["hit_rate_next"]))
+        click.echo(f"  {rep['name']}: {sm['n_steps']} steps; hit rate vs next "
+                   f"{_fmt(hb, '.1f')}% -> {_fmt(hd, '.1f')}%; "
+                   f"K_1pct {_fmt(b['k_1pct_next'], '.2f')} -> {_fmt(d['k_1pct_next'], '.2f')}; "
+                   f"projected speedup x{_fmt(p['speedup'], '.3f')} (f={sm['projected']['cd_share']:g}, "
+                   f"T_frame={sm['projected']['frame_ms']:g} ms); "
+                   f"certified: {'all' if rep['certificate']['all_certified'] else 'NOT ALL'}")
+    pl = doc["plots"]
+    if pl["status"] != "written":
+        click.echo(f"  plots {pl['status']}: {pl['reason']}")
+    for c in doc["checks"]:
+        click.echo(f"  check {c['name']} [{c['file']}]: {'pass' if c['passed'] else 'FAIL'} - {c['message']}")
+    if doc["checks"] and not doc["all_checks_passed"]:
+        failed = [c["name"] for c in doc["checks"] if not c["passed"]]
+        click.echo(f"penfree report: {len(failed)} check(s) failed: {', '.join(failed)}", err=True)

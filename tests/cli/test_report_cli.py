@@ -1,0 +1,215 @@
+"""``penfree report``: files written, exit codes of the CI checks, unusable input."""
+
+import importlib
+import json
+import math
+import sys
+import types
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from penfree.cli import main
+from penfree.constants import DEFAULT_GAMMA
+from penfree.sequence import Sequence
+
+
+def _far_bounds(x, *, edges=None, faces=None, thickness=0.0, gamma=DEFAULT_GAMMA, query_radius=None):
+    # Stand-in for trust_region_bounds on scenes whose primitives are all farther apart
+    # than r_q: every vertex gets gamma * (r_q - thickness) (SPEC section 7).
+    return np.full(np.asarray(x).shape[0], gamma * max(0.0, query_radius - thickness))
+
+
+@pytest.fixture(autouse=True)
+def bounds(monkeypatch):
+    """The real trust_region_bounds once it exists, else the far-apart stand-in."""
+    try:
+        importlib.import_module("penfree.core.trust_region")
+    except ModuleNotFoundError:
+        monkeypatch.setitem(sys.modules, "penfree.core.trust_region",
+                            types.SimpleNamespace(trust_region_bounds=_far_bounds))
+
+
+def _result_file(path, uncertified=False):
+    # Two 2-edge rods 10 apart (out of query range of each other), drifting and spinning
+    # slowly, so the real bounds equal the stand-in's; a translation map per step
+    # (certified, margin 1).
+    from penfree.formats.result import write_result
+
+    s = np.linspace(0.0, 0.2, 3)  # 3 vertices a rod: no non-adjacent pair within a rod
+    base = np.concatenate([np.c_[s, 0 * s, 0 * s], np.c_[s, 0 * s + 10.0, 0 * s]])
+    frames = []
+    for t in range(6):
+        a = 0.05 * t
+        R = np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+        frames.append(base @ R.T + 0.01 * t * np.array([1.0, 0.5, 0.0]))
+    edges = np.array([[0, 1], [1, 2], [3, 4], [4, 5]])
+    seq = Sequence(positions=np.stack(frames), edges=edges).validate()
+    pos, fr = seq.positions, np.arange(1, 6)
+    u = (pos[fr] - pos[fr - 1]).mean(axis=1)
+    margin = np.ones(5)
+    if uncertified:
+        margin[2] = np.nan
+    steps = {"frame": fr, "A": np.repeat(np.eye(3)[None], 5, axis=0), "b": u, "deformed": pos[fr] + u[:, None],
+             "model": np.array(["translation"] * 5), "projection": np.array(["none"] * 5),
+             "certificate_margin": margin, "margin_required": np.zeros(5), "rank": np.zeros(5, dtype=np.int64),
+             "time_fit_s": np.full(5, 2e-4)}
+    write_result(path, seq, steps, {"options": {"model": "translation", "projection": "auto"}})
+    return str(path)
+
+
+@pytest.fixture
+def result(tmp_path):
+    return _result_file(tmp_path / "res.h5")
+
+
+def run(*args):
+    return CliRunner().invoke(main, ["report", *map(str, args)])
+
+
+def test_report_written(result, tmp_path):
+    out = tmp_path / "rep"
+    r = run(result, "-o", out, "--no-ladder", "--frame-ms", "16", "--cd-share", "0.4")
+    assert r.exit_code == 0, r.output
+    doc = json.loads((out / "report.json").read_text())
+    assert doc["options"]["frame_ms"] == 16.0 and doc["options"]["cd_share"] == 0.4
+    p = doc["files"][0]["summary"]["projected"]
+    assert (p["frame_ms"], p["cd_share"], p["label"]) == (16.0, 0.4, "projected")
+    assert doc["files"][0]["stats_source"] == "computed" and doc["files"][0]["ladder"] is None
+    assert (out / "report.md").exists()
+    assert "projected speedup" in r.output
+
+
+def test_json_on_stdout_and_frames(result, tmp_path):
+    r = run(result, "-o", tmp_path / "rep", "--no-ladder", "--no-plots", "--frames", "2:4", "--json")
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.output)
+    assert doc["files"][0]["steps"]["frame"] == [2, 3]
+    assert doc["plots"]["status"] == "disabled"
+
+
+def test_ladder_and_replay(result, tmp_path):
+    pytest.importorskip("penfree.core.step")
+    r = run(result, "-o", tmp_path / "rep", "--replay", "--no-plots", "--json")
+    assert r.exit_code == 0, r.output
+    f = json.loads(r.output)["files"][0]
+    assert [row["model"] for row in f["ladder"]["rows"]] == ["baseline", "translation", "rigid", "similarity",
+                                                              "affine", "auto"]
+    assert "replay_k_1pct" in f["summary"]["projected"]
+
+
+@pytest.mark.parametrize(
+    "opts, code",
+    [
+        pytest.param(["--min-speedup", "0.5"], 0, id="speedup-pass"),
+        pytest.param(["--min-speedup", "1000"], 1, id="speedup-fail"),
+        pytest.param(["--min-hit-rate-gain", "-100"], 0, id="gain-pass"),
+        pytest.param(["--min-hit-rate-gain", "101"], 1, id="gain-fail"),
+        pytest.param(["--fail-if-uncertified"], 0, id="certified"),
+    ],
+)
+def test_threshold_exit_codes(result, tmp_path, opts, code):
+    out = tmp_path / "rep"
+    r = run(result, "-o", out, "--no-ladder", "--no-plots", *opts)
+    assert r.exit_code == code, r.output
+    assert (out / "report.json").exists()  # written whether the checks pass or not
+    doc = json.loads((out / "report.json").read_text())
+    assert doc["all_checks_passed"] is (code == 0)
+    if code:
+        assert "check(s) failed" in r.output
+
+
+def test_uncertified_fails(tmp_path):
+    f = _result_file(tmp_path / "u.h5", uncertified=True)
+    r = run(f, "-o", tmp_path / "rep", "--no-ladder", "--no-plots", "--fail-if-uncertified")
+    assert r.exit_code == 1 and "certified" in r.output and "frames [3]" in r.output
+
+
+def test_regression_against_baseline(result, tmp_path):
+    r = run(result, "-o", tmp_path / "base", "--no-ladder", "--no-plots")
+    assert r.exit_code == 0, r.output
+    base = tmp_path / "base" / "report.json"
+    # the same file against itself: no regression (fit time comes from the file)
+    r = run(result, "-o", tmp_path / "same", "--no-ladder", "--no-plots", "--baseline", base, "--max-regression", "0")
+    assert r.exit_code == 0, r.output
+    # a baseline that needed half the CD passes: the current file regressed
+    doc = json.loads(base.read_text())
+    doc["files"][0]["summary"]["deformed"]["k_1pct_next"] /= 2
+    better = tmp_path / "better.json"
+    better.write_text(json.dumps(doc))
+    r = run(result, "-o", tmp_path / "new", "--no-ladder", "--no-plots", "--baseline", better,
+            "--max-regression", "5")
+    assert r.exit_code == 1, r.output
+    assert "regression:deformed.k_1pct_next" in r.output
+    checks = json.loads((tmp_path / "new" / "report.json").read_text())["checks"]
+    assert [c["passed"] for c in checks] == [False, True, True]
+
+
+@pytest.mark.parametrize(
+    "make, args, match",
+    [
+        pytest.param("raw", [], "not a penfree deform output", id="raw-sequence"),
+        pytest.param("missing", [], "no such file", id="missing-file"),
+        pytest.param("text", [], "not a penfree deform output", id="not-hdf5"),
+        pytest.param("ok", ["--baseline", "nope.json"], "go together", id="baseline-without-max"),
+        pytest.param("ok", ["--baseline", "nope.json", "--max-regression", "5"], "cannot read", id="bad-baseline"),
+        pytest.param("ok", ["--frames", "90:"], "selects none", id="empty-frames"),
+    ],
+)
+def test_unusable_input_exit_2(tmp_path, make, args, match):
+    from penfree.formats import write_sequence
+
+    f = tmp_path / "in.h5"
+    if make == "raw":
+        write_sequence(f, Sequence(positions=np.zeros((3, 2, 3)) + np.arange(3)[:, None, None]).validate())
+    elif make == "text":
+        f.write_text("hello")
+    elif make == "ok":
+        _result_file(f)
+    out = tmp_path / "rep"
+    r = run(f, "-o", out, "--no-ladder", *[tmp_path / a if a.endswith(".json") else a for a in args])
+    assert r.exit_code == 2, r.output
+    assert match in r.output and "Traceback" not in r.output
+    assert len(r.output.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_existing_output_not_replaced(result, tmp_path):
+    out = tmp_path / "rep"
+    out.mkdir()
+    (out / "keep").write_text("x")
+    r = run(result, "-o", out, "--no-ladder", "--no-plots")
+    assert r.exit_code == 2 and "--overwrite" in r.output
+    assert (out / "keep").exists()
+    r = run(result, "-o", out, "--no-ladder", "--no-plots", "--overwrite")
+    assert r.exit_code == 0 and not (out / "keep").exists()
+
+
+def test_click_rejects_bad_assumptions(result, tmp_path):
+    r = run(result, "-o", tmp_path / "rep", "--cd-share", "1.5")
+    assert r.exit_code == 2
+
+
+def test_two_frames_no_next_frame(tmp_path):
+    # One step and no next frame: next figures are null, projections n/a, and a
+    # speedup threshold cannot be met (a check that cannot be evaluated fails).
+    from penfree.formats.result import write_result
+
+    x0 = np.array([[0.0, 0, 0], [0.1, 0, 0], [0.2, 0, 0]])
+    seq = Sequence(positions=np.stack([x0, x0 + [0.01, 0, 0]]), edges=np.array([[0, 1], [1, 2]])).validate()
+    steps = {"frame": np.array([1]), "A": np.eye(3)[None], "b": np.array([[0.01, 0, 0]]),
+             "deformed": seq.positions[1:] + [0.01, 0, 0], "model": np.array(["translation"]),
+             "projection": np.array(["none"]), "certificate_margin": np.ones(1), "time_fit_s": np.full(1, 1e-4)}
+    f = tmp_path / "two.h5"
+    write_result(f, seq, steps, {})
+    out = tmp_path / "rep"
+    r = run(f, "-o", out, "--no-ladder", "--min-speedup", "0.1")
+    assert r.exit_code == 1, r.output
+    doc = json.loads((out / "report.json").read_text())
+    fr = doc["files"][0]
+    assert fr["summary"]["n_steps_next"] == 0 and fr["summary"]["projected"]["k_1pct"]["speedup"] is None
+    assert fr["worst_steps"][0]["target"] == "pred"
+    assert fr["summary"]["deformed"]["hit_rate_pred"] == 1.0  # deformed exactly onto x_pred
+    assert doc["checks"][0]["message"] == "no step with a next frame"
+    assert "n/a" in (out / "report.md").read_text()
