@@ -24,10 +24,47 @@ AUTO_MODEL_RTOL = 0.05
 MODELS = ("translation", "rigid", "similarity", "affine")
 PROJECTIONS = ("none", "svd", "sym", "auto")
 
+#: Noise-aware rank cut-off of the fit (penfree.core.fit.significant_subspace):
+#: a direction of C is kept only if the standard error of the slope D e it
+#: carries is at most this (dimensionless strain per step). Real per-step
+#: strains are ~1e-3..1e-2 and a slope error of 1e-2 moves sigma_min(I + tD)
+#: by at most 1e-2, far from the certificate's limit; noise-driven slopes of a
+#: near-straight cable are orders of magnitude larger (issue: noise-aware cut-off).
+FIT_NOISE_SLOPE_TOL = 1e-2
+
+#: A direction's RMS spread must exceed this many input ulps of the typical
+#: coordinate (eps_dtype * |coordinates|): below it the shape is quantisation
+#: noise (float32 input precision as a noise floor; ~4 bits of headroom).
+FIT_PRECISION_FACTOR = 16.0
+
+#: ``auto`` model: absolute slack, relative to the translation's RMS residual.
+#: Residuals from moments cancel at ~sqrt(eps) ~ 1.5e-8 of it; 1e-6 leaves room,
+#: so models that are equal up to rounding count as equal.
+AUTO_MODEL_ATOL_REL = 1e-6
+
+#: Fit kernels run their fixed chunks in parallel only from this many vertices
+#: on (same chunks, same summation order, so the same bits): below it, waking
+#: threads (~10-50 us, ms on a loaded machine) costs more than the ~5 ns per
+#: vertex of a serial pass (measured in benchmarks/bench_fit.py).
+PARALLEL_MIN_VERTICES = 16384
+
 # --- projection and certificate (SPEC section 5) -----------------------------
 #: Upper clamp of singular values in the ``svd`` projection (the original
 #: recipe clamps into [margin, S_MAX]); per-frame motion never needs more.
 SVD_SMAX = 10.0
+
+#: Fast certificate (penfree.core.certificate.fast_margin_bound): rounding
+#: allowance c in  lambda_min >= computed - c * eps * (1 + ||sym D||_F).
+#: Covers forming D = A - I and sym(D) (entrywise relative error <= eps/2,
+#: Frobenius-bounded), LAPACK's backward error of the 3x3 symmetric
+#: eigensolver (a small multiple of eps ||S||_2) and the final additions,
+#: with a wide factor of safety.
+FAST_CERT_ROUNDING_C = 64.0
+
+#: ``sym`` projection: eigenvalues of sym(D) are clamped at (margin - 1) plus
+#: this times (1 + ||sym D||_F), ~70x the fast test's rounding allowance, so
+#: the rounded result still passes the fast test.
+SYM_SAFETY_REL = 1e-12
 
 #: With a thickness h, the margin is h / d0 (d0 the smallest start gap). d0 is only
 #: searched within this many thicknesses: beyond it the margin h / radius (<= 0.1)
@@ -47,3 +84,33 @@ DEFAULT_CD_SHARE = 0.5
 DEFAULT_FRAME_MS = 32.0
 #: Cap on replay passes (SPEC section 7).
 DEFAULT_REPLAY_CAP = 64
+#: K_1pct = ceil of this percentile of r_v (SPEC: "re-detect when >= 1% are truncated").
+K_PERCENTILE = 99
+#: numpy.percentile method of every r_v quantile (core/stats.py): "higher" returns an
+#: observed r_v, and with it ceil(q99) is exactly the smallest pass count after which
+#: fewer than 1% of the vertices are still truncated.
+PERCENTILE_METHOD = "higher"
+#: r_v histograms (core/stats.py): log bins over 10^lo .. 10^hi, this many per decade,
+#: plus a bin for r = 0 below and one for r >= 10^hi (and blocked vertices) above.
+R_HIST_DECADES = (-4, 4)
+R_HIST_BINS_PER_DECADE = 8
+
+# --- CCD (SPEC sections 6 and 10; penfree/core/ccd.py) -----------------------
+#: Proven bound of the floating-point error of one corner value of the contact
+#: function F, relative to the largest coordinate magnitude M of the query.
+#: The worst evaluation chain (x(t) = x0 + t (x1 - x0), then 3 differences, 2
+#: products by u, v in [0, 1] and 2 sums) stays below 56 u M, u = 2^-53; 2^-46 = 128 u
+#: leaves a factor 2 of slack.
+CCD_ERR_REL = 2.0**-46
+#: Absolute term covering underflow (each of the ~20 operations loses at most
+#: 2^-1075 when results are subnormal).
+CCD_ERR_ABS = 1e-300
+#: A box whose image under F is narrower than CCD_TOL_REL times the query's extent
+#: (and at least 4 times the error bound) and cannot be discarded is reported as
+#: a contact: the primitives then are within sqrt(3) (thickness + tol + 2 err)
+#: at the reported toi. 1e-10 resolves the 1e-9 near-misses of Wang et al. 2021.
+CCD_TOL_REL = 1e-10
+#: The reported toi comes from a box at most CCD_TOI_TOL * t_max wide in time.
+CCD_TOI_TOL = 1e-6
+#: Boxes examined per query before giving up and reporting a (conservative) hit.
+CCD_MAX_BOXES = 1 << 15
