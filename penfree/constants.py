@@ -114,3 +114,22 @@ CCD_TOL_REL = 1e-10
 CCD_TOI_TOL = 1e-6
 #: Boxes examined per query before giving up and reporting a (conservative) hit.
 CCD_MAX_BOXES = 1 << 15
+
+# --- collision-aware model choice (penfree/core/selection.py) ----------------
+#: Rounding allowance of sigma_min from LAPACK's SVD: backward error
+#: p(3) * eps * ||A||_2 with p(3) a small constant; 64 is a wide factor of safety.
+SIGMA_ROUNDING_C = 64.0
+#: Predicted bounds are shrunk by this relative amount so that the rounding of the
+#: stored x_def (float32 outputs round at ~6e-8 relative) cannot make a prediction
+#: exceed the bound recomputed at the deformed state.
+PREDICT_SLACK_REL = 1e-6
+#: Candidates besides the model ladder: the affine map with singular values clamped
+#: into [1 - delta, 1 + delta], and the blends I + alpha D_affine.
+SELECT_CLAMP_LEVELS = (0.1, 0.03, 0.01, 0.003)
+SELECT_BLEND_LEVELS = (0.75, 0.5, 0.25)
+#: Among equal predicted K_1pct, a candidate must lower the predicted 99th percentile
+#: of r_v by more than this (relative) to beat a simpler one.
+SELECT_TIE_RTOL = 0.02
+#: ... and by more than this absolute amount: r_v is a ratio of lengths, and a map
+#: that reaches the prediction up to rounding has r_v ~ 1e-16, which is no signal.
+SELECT_TIE_ATOL = 1e-9

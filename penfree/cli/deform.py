@@ -62,7 +62,7 @@ def command(input_path, output_path, model, projection, margin, thickness, frame
             seq, model=model, projection=projection, margin=margin, thickness=thickness,
             weights=weights, frames=frame_slice, per_vertex=per_vertex, progress=bar,
         )
-    groups = {}
+    groups = dict(result.groups)
     if with_stats:
         from ..core.stats import compute_stats
 

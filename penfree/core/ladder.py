@@ -3,8 +3,12 @@
 Every step of a sequence is re-fitted with each model of the ladder (translation,
 rigid, similarity, affine, auto) to the same target, and each model is scored by its
 mean fit time, its residual to the simulator's next frame and to the prediction, the
-trust-region figures of its deformed state against the next frame, and its
-certificate margin. The ``baseline`` row is the recorded state itself (no map).
+trust-region figures of its deformed state against the next frame (bounds recomputed
+at that state: the *actual* figures, not the selection's predictions), and its
+certificate margin. The ``baseline`` row is the recorded state itself (no map); the
+``x_pred`` row is the unsafe ideal (the prediction itself, no certificate), a ceiling.
+``auto`` is the collision-aware choice of `selection.select_step` when the scene has
+topology (the residual-only choice of `fit_step` otherwise).
 """
 
 from __future__ import annotations
@@ -14,8 +18,8 @@ import time
 
 import numpy as np
 
-from ..constants import DEFAULT_GAMMA
-from .stats import query_radius, ratio_stats, residual_summary
+from ..constants import DEFAULT_GAMMA, DEFAULT_REPLAY_CAP
+from .stats import query_radius, ratio_stats, replay_passes, residual_summary
 
 #: The ladder, cheapest first (SPEC section 4), then the automatic choice.
 LADDER_MODELS = ("translation", "rigid", "similarity", "affine", "auto")
@@ -25,7 +29,10 @@ LADDER_WARMUP_CALLS = 2
 
 #: Per-step figures kept for every model (arrays (S,) in ``ladder["steps"][model]``).
 LADDER_FIGURES = ("fit_ms", "residual_next_rms", "residual_pred_rms", "k_1pct_next", "k_any_next",
-                  "hit_rate_next", "certificate_margin")
+                  "hit_rate_next", "certificate_margin", "replay_k_1pct_next", "replay_k_any_next")
+
+#: Fixed models `auto` is compared with when counting how often it chose the best.
+FIXED_MODELS = ("translation", "rigid", "similarity", "affine")
 
 
 def _pooled_rms(a):
@@ -54,7 +61,7 @@ def _min(a):
 
 def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, weights=None, margins=None,
                  models=LADDER_MODELS, projection="auto", gamma=DEFAULT_GAMMA, bounds_fn=None, fit_fn=None,
-                 progress=None) -> dict:
+                 ceiling=True, replay=False, replay_cap=DEFAULT_REPLAY_CAP, progress=None) -> dict:
     """Re-fit every step with each model and score speed against error.
 
     Parameters
@@ -82,6 +89,10 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
         `trust_region_bounds` with this topology.
     fit_fn : callable, optional
         Stand-in for `penfree.core.step.fit_step` (same signature and result fields).
+    ceiling : bool
+        Add the ``x_pred`` row (the unsafe ideal: the prediction itself).
+    replay, replay_cap
+        Also the replay estimates (one bound computation per pass, model and step).
     progress : callable, optional
         Called once per finished step.
 
@@ -95,7 +106,10 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
         next frame; bounds at that model's deformed state with the step's `r_q`),
         ``certificate_margin_mean``, ``certificate_margin_min``, ``models_used``
         ({name: steps}, what ``auto`` picked or a fallback used);
-        ``steps``: {model: {figure: (S,) float64}} for the figures in `LADDER_FIGURES`.
+        ``steps``: {model: {figure: (S,) float64}} for the figures in `LADDER_FIGURES`;
+        ``auto_best_rate``: fraction of the steps with a next frame on which ``auto``'s
+        actual K_1pct was the smallest of baseline and the fixed models (NaN without
+        ``auto``).
 
     Notes
     -----
@@ -118,12 +132,18 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
             return trust_region_bounds(x, edges=edges, faces=faces, thickness=thickness, gamma=gamma,
                                        query_radius=r_q)
 
-    names = ["baseline", *models]
+    names = ["baseline", *models, *(["x_pred"] if ceiling else [])]
+    select = "auto" in models and (edges is not None and len(edges) or faces is not None and len(faces))
+    if select:
+        from .selection import select_step
+        from .trust_region import _scene, per_vertex_separation
+
+        _, E_sel, F_sel = _scene(positions[0], edges, faces)
     per = {m: {f: np.full(S, np.nan) for f in LADDER_FIGURES} for m in names}
     used = {m: {} for m in names}
     if S:
         for m in models:  # warm-up: keep JIT compilation out of the timings
-            for _ in range(LADDER_WARMUP_CALLS):
+            for _ in range(LADDER_WARMUP_CALLS if not (select and m == "auto") else 0):
                 fit_fn(positions[frames[0] - 1], positions[frames[0]], weights=weights, model=m,
                        projection=projection, margin=0.0)
     for i, s in enumerate(frames):
@@ -136,11 +156,20 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
         margin = float(margins[i])
         for m in models:
             model, mg = (m, margin) if margin < 1.0 else ("translation", 0.0)
-            t0 = time.perf_counter()
-            r = fit_fn(x_prev, x, weights=weights, model=model, projection=projection, margin=mg)
+            if select and model == "auto":
+                # The separations at x are the simulator's last detection: not fit time.
+                d_start = per_vertex_separation(x64, E_sel, F_sel, r_q)
+                t0 = time.perf_counter()
+                r, _ = select_step(x_prev, x, d_start, r_q=r_q, thickness=thickness, gamma=gamma,
+                                   weights=weights, margin=mg, projection=projection)
+            else:
+                t0 = time.perf_counter()
+                r = fit_fn(x_prev, x, weights=weights, model=model, projection=projection, margin=mg)
             dt_ms = (time.perf_counter() - t0) * 1e3
             used[m][r.model] = used[m].get(r.model, 0) + 1
             states[m] = (np.asarray(r.x_def, dtype=np.float64), dt_ms, float(r.certificate_margin))
+        if ceiling:
+            states["x_pred"] = (x_pred, math.nan, math.nan)
         for m, (x_s, dt_ms, cm) in states.items():
             row = per[m]
             row["fit_ms"][i], row["certificate_margin"][i] = dt_ms, cm
@@ -151,6 +180,9 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
                 rs = ratio_stats(x_s, x_next, b)
                 row["k_1pct_next"][i], row["k_any_next"][i] = rs["k_1pct"], rs["k_any"]
                 row["hit_rate_next"][i] = rs["hit_rate"]
+                if replay:
+                    rp = replay_passes(x_s, x_next, lambda z: bounds_fn(z, r_q), cap=replay_cap, b0=b)
+                    row["replay_k_1pct_next"][i], row["replay_k_any_next"][i] = rp["k_1pct"], rp["k_any"]
         if progress is not None:
             progress()
     rows = []
@@ -164,10 +196,30 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
             "residual_pred_rms": _pooled_rms(p["residual_pred_rms"]),
             "k_1pct_next": _mean(p["k_1pct_next"]),
             "k_any_next": _mean(p["k_any_next"]),
+            "k_1pct_next_sum": _sum(p["k_1pct_next"]),
+            "replay_k_1pct_next": _mean(p["replay_k_1pct_next"]),
+            "replay_k_any_next": _mean(p["replay_k_any_next"]),
             "hit_rate_next": _mean(p["hit_rate_next"]),
             "certificate_margin_mean": _mean(p["certificate_margin"]),
             "certificate_margin_min": _min(p["certificate_margin"]),
             "models_used": dict(sorted(used[m].items())),
         })
     n_next = int(np.count_nonzero(frames + 1 < T))
-    return {"models": names, "n_steps": int(S), "n_steps_next": n_next, "rows": rows, "steps": per}
+    return {"models": names, "n_steps": int(S), "n_steps_next": n_next, "rows": rows, "steps": per,
+            "auto_best_rate": _auto_best_rate(per, models)}
+
+
+def _auto_best_rate(per, models):
+    if "auto" not in models:
+        return math.nan
+    rivals = ["baseline", *[m for m in FIXED_MODELS if m in per]]
+    best = np.min([per[m]["k_1pct_next"] for m in rivals], axis=0)
+    auto = per["auto"]["k_1pct_next"]
+    ok = np.isfinite(auto)
+    return float(np.mean(auto[ok] <= best[ok])) if ok.any() else math.nan
+
+
+def _sum(a):
+    a = np.asarray(a, dtype=np.float64)
+    a = a[np.isfinite(a)]
+    return float(a.sum()) if a.size else math.nan

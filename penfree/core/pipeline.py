@@ -25,6 +25,7 @@ class DeformOutput:
 
     steps: dict
     options: dict = field(default_factory=dict)
+    groups: dict = field(default_factory=dict)
 
 
 def step_indices(n_frames: int, frames=None) -> np.ndarray:
@@ -43,7 +44,7 @@ def step_indices(n_frames: int, frames=None) -> np.ndarray:
     return idx.astype(np.int64)
 
 
-def step_margin(x, seq, thickness, margin):
+def step_margin(x, seq, thickness, margin, d0=None):
     """Certificate margin of one step: the explicit `margin`, else thickness / d0.
 
     With thickness `h > 0` every gap must stay >= h along the path. Gaps shrink by at
@@ -52,6 +53,9 @@ def step_margin(x, seq, thickness, margin):
     `MARGIN_GAP_RADIUS_FACTOR * h`; no pair inside it means d0 >= that radius, and the
     margin h / radius is still sufficient (only more conservative than needed).
 
+    `d0` may be given (any lower bound of the smallest gap, e.g. the minimum of
+    per-vertex separations capped at a radius >= thickness).
+
     Returns ``(margin, d0)``; margin is ``None`` when the start state already violates
     the thickness (d0 <= h): no shape change can be certified then, only a translation.
     """
@@ -59,10 +63,11 @@ def step_margin(x, seq, thickness, margin):
         return float(margin), math.nan
     if thickness <= 0 or seq.kind == "points":
         return 0.0, math.nan
-    from .trust_region import min_separation
+    if d0 is None:
+        from .trust_region import min_separation
 
-    radius = MARGIN_GAP_RADIUS_FACTOR * thickness
-    d0 = float(min_separation(x, E=seq.edges, F=seq.faces, radius=radius))
+        radius = MARGIN_GAP_RADIUS_FACTOR * thickness
+        d0 = float(min_separation(x, E=seq.edges, F=seq.faces, radius=radius))
     if d0 <= thickness:
         return None, d0
     return thickness / d0, d0
@@ -141,14 +146,34 @@ def deform_sequence(
         out["residual_pred_per_vertex"] = np.empty((S, N), dtype=np.float32)
         out["residual_next_per_vertex"] = np.full((S, N), np.nan, dtype=np.float32)
 
+    select = model == "auto" and seq.kind != "points"
+    if select:
+        from .selection import select_step
+        from .trust_region import _scene, per_vertex_separation
+
+        _, E, F = _scene(pos[0], seq.edges, seq.faces)
+        table_rows = []
+
     for k, s in enumerate(S_idx):
         x_prev, x = pos[s - 1], pos[s]
-        m, d0 = step_margin(x, seq, thickness, margin)
-        step_model = model if m is not None else "translation"
-        r = fit_step(
-            x_prev, x, weights=weights, model=step_model, projection=projection,
-            margin=0.0 if m is None else m,
-        )
+        if select:
+            x64 = np.asarray(x, dtype=np.float64)
+            r_q = thickness + float(np.linalg.norm(x64 - np.asarray(x_prev, dtype=np.float64), axis=1).max())
+            d_start = per_vertex_separation(x64, E, F, r_q)
+            m, d0 = step_margin(x, seq, thickness, margin, d0=float(d_start.min()) if len(d_start) else r_q)
+        else:
+            m, d0 = step_margin(x, seq, thickness, margin)
+        if select and m is not None:
+            r, table = select_step(x_prev, x, d_start, r_q=r_q, thickness=thickness, weights=weights,
+                                   margin=m, projection=projection)
+            table_rows.append(table)
+        else:
+            r = fit_step(
+                x_prev, x, weights=weights, model=model if m is not None else "translation",
+                projection=projection, margin=0.0 if m is None else m,
+            )
+            if select:
+                table_rows.append(None)
         if not certify(r.A, 0.0 if m is None else m):
             raise CertificateError(f"step {s}: the applied map failed the exact certificate (margin {m})")
         out["A"][k], out["b"][k] = r.A, r.b
@@ -178,6 +203,7 @@ def deform_sequence(
         if progress is not None:
             progress()
 
+    groups = {"selection": selection_arrays(table_rows)} if select else {}
     out["model"] = out["model"].astype(str)
     out["projection"] = out["projection"].astype(str)
     options = {
@@ -188,7 +214,35 @@ def deform_sequence(
         "frames": "all" if frames is None else f"{frames[0] if frames[0] is not None else ''}:{frames[1] if frames[1] is not None else ''}",
         "per_vertex": bool(per_vertex),
     }
-    return DeformOutput(steps=out, options=options)
+    return DeformOutput(steps=out, options=options, groups=groups)
+
+
+def selection_arrays(table_rows) -> dict:
+    """Per-step candidate tables of `select_step` as ``selection/...`` arrays.
+
+    ``candidates`` (C,) names in a fixed order; ``predicted_<figure>`` (S, C) with NaN
+    where a candidate was not certified (or the step was not selected); ``chosen`` (S,)
+    the index of the chosen candidate (-1 when the step was not selected).
+    """
+    names = []
+    for table in table_rows:
+        for row in table or ():
+            if row["name"] not in names:
+                names.append(row["name"])
+    S, C = len(table_rows), len(names)
+    figures = ("k_1pct", "k_any", "hit_rate", "r_q99", "sigma_lb", "certificate_margin")
+    arrays = {f"predicted_{f}": np.full((S, C), np.nan) for f in figures}
+    chosen = np.full(S, -1, dtype=np.int64)
+    for k, table in enumerate(table_rows):
+        for row in table or ():
+            j = names.index(row["name"])
+            for f in figures:
+                arrays[f"predicted_{f}"][k, j] = row[f]
+            if row["chosen"]:
+                chosen[k] = j
+    arrays["candidates"] = np.array(names, dtype=str)
+    arrays["chosen"] = chosen
+    return arrays
 
 
 def summarize_steps(steps: dict) -> dict:
