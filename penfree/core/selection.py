@@ -37,9 +37,14 @@ _I3 = np.eye(3)
 
 @dataclass
 class Candidate:
-    """One certified candidate map ``x_def = x + D (x - c) + u``."""
+    """One certified candidate map ``x_def = x + D (x - c) + u``.
+
+    `A` is the exact float64 matrix the certificate passed, and ``D = A - I`` is
+    computed from it (exact for the entries near 1), so ``I + D`` is never re-rounded.
+    """
 
     name: str
+    A: np.ndarray
     D: np.ndarray
     u: np.ndarray
     rank: int
@@ -125,7 +130,7 @@ def _certified(name, D, u, rank, m, margin, projection):
     bound = fast_margin_bound(A)
     if not bound >= margin:
         bound = certified_margin(A, margin)
-    return Candidate(name, D, u, rank, mode, float(bound), sigma_min_lower_bound(A))
+    return Candidate(name, A, D, u, rank, mode, float(bound), sigma_min_lower_bound(A))
 
 
 def _passes(A, margin):
@@ -141,8 +146,8 @@ def candidate_maps(m, margin=0.0, projection="auto") -> list:
     (`SELECT_BLEND_LEVELS`). Every returned map passes the exact certificate.
     """
     zero = np.zeros((3, 3))
-    out = [Candidate("none", zero, np.zeros(3), 0, "none", 1.0, 1.0),
-           Candidate("translation", zero, m.u.copy(), 0, "none", 1.0, 1.0)]
+    out = [Candidate("none", _I3.copy(), zero, np.zeros(3), 0, "none", 1.0, 1.0),
+           Candidate("translation", _I3.copy(), zero, m.u.copy(), 0, "none", 1.0, 1.0)]
     D_aff = None
     for name in K.MODELS[1:]:
         _, D, u, rank = _fit.fit_model(m, name)
@@ -239,7 +244,7 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
     best = cands[k]
     x_def, stats = _fit.apply_map(x, best.D, best.u, m.c, out=out, x_prev=x_prev)
     result = StepResult(
-        A=_I3 + best.D, b=best.u - best.D @ m.c, x_def=x_def, D=best.D, u=best.u, c=m.c.copy(),
+        A=best.A.copy(), b=best.u - best.D @ m.c, x_def=x_def, D=best.D, u=best.u, c=m.c.copy(),
         model=best.name, projection=best.projection, certificate_margin=best.certificate_margin,
         rank=best.rank, **stats, time_fit_s=time.perf_counter() - t0, model_fitted="auto",
     )

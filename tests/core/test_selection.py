@@ -91,7 +91,7 @@ def test_predict_passes_matches_ratio_stats():
 
 
 def _cand(name, k, q99):
-    c = Candidate(name, np.zeros((3, 3)), np.zeros(3), 0, "none", 1.0, 1.0)
+    c = Candidate(name, np.eye(3), np.zeros((3, 3)), np.zeros(3), 0, "none", 1.0, 1.0)
     c.predicted = {"k_1pct": k, "r_q99": q99}
     return c
 
@@ -176,7 +176,8 @@ def test_every_candidate_and_choice_is_certified(margin):
     x_prev = 2 * V - x_pred
     m = _fit.fit_moments(x_prev, V)
     for cand in candidate_maps(m, margin):
-        assert certify(np.eye(3) + cand.D, margin), cand.name
+        assert certify(cand.A, margin), cand.name
+        np.testing.assert_array_equal(cand.D, cand.A - np.eye(3))
     r_q = float(np.linalg.norm(x_pred - V, axis=1).max())
     _, E_, F_ = _scene(V, E, F)
     d = per_vertex_separation(V, E_, F_, r_q)
