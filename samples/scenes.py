@@ -1,0 +1,253 @@
+"""Dynamic sample scenes simulated with the XPBD solver of ``pbd.py``.
+
+Every scene function has the signature ``scene(vertices, frames, seed)`` and
+returns ``(positions, topology, attrs)``: positions ``(T, N, 3)`` float64,
+topology a dict with ``edges`` and/or ``faces`` (and optionally
+``components``), attrs a dict with ``dt``, ``thickness`` and a short
+description (``generate.py`` adds the command line to it).
+
+Thickness values are fractions of the smallest rest edge length that
+``check.py`` showed to be kept by the recorded motion (README.md lists the
+measured separations).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import j0, j1
+
+from pbd import Solver, chain_constraints, chain_edges, grid_constraints, grid_faces
+
+
+#: First zero of the Bessel function J0 (hanging-chain modes).
+J0_ROOT = 2.404825557695773
+
+
+def _rotate(vecs, axis, angle):
+    """Rodrigues rotation of row vectors about unit `axis` by `angle` (broadcasts)."""
+    axis = np.asarray(axis, float)
+    c, s = np.cos(angle)[..., None], np.sin(angle)[..., None]
+    return vecs * c + np.cross(axis, vecs) * s + axis * (vecs @ axis)[..., None] * (1 - c)
+
+
+def _hanging_chains(pins, length, per, amp, azim, ecc):
+    """Polylines hanging from `pins`, bent in the first hanging-chain mode.
+
+    The lateral offset is ``A J0(2.405 sqrt(z / L))`` with z measured from the
+    free end (tip offset `amp`, direction `azim`); the initial velocity is the
+    same mode shape sideways with speed ``ecc * amp * omega``, so each chain
+    swings on an ellipse. Starting in the mode avoids a whipping tip.
+
+    Returns
+    -------
+    x, v : (len(pins) * per, 3) float64
+    """
+    x, v = [], []
+    for k in range(len(pins)):
+        s = np.linspace(0, length[k], per)
+        z = length[k] - 0.5 * (s[1:] + s[:-1])
+        q = J0_ROOT * np.sqrt(z / length[k])
+        slope = amp[k] * J0_ROOT * np.where(q > 1e-9, j1(q) / np.maximum(q, 1e-9), 0.5) \
+            * J0_ROOT / (2 * length[k])
+        phi = np.arctan(slope)
+        out = np.array([np.cos(azim[k]), np.sin(azim[k]), 0.0])
+        side = np.array([-np.sin(azim[k]), np.cos(azim[k]), 0.0])
+        seg = (np.sin(phi)[:, None] * out + np.cos(phi)[:, None] * [0, 0, -1.0]) * (s[1] - s[0])
+        x.append(pins[k] + np.vstack([np.zeros(3), np.cumsum(seg, axis=0)]))
+        mode = j0(J0_ROOT * np.sqrt((length[k] - s) / length[k]))
+        omega = 0.5 * J0_ROOT * np.sqrt(9.81 / length[k])
+        v.append(mode[:, None] * (ecc[k] * amp[k] * omega) * side)
+    return np.concatenate(x), np.concatenate(v)
+
+
+def rods(vertices=2048, frames=48, seed=0):
+    """Pinned strands (yarn-like polylines) swinging conically with different phases.
+
+    32 strands hang from a 8 x 4 grid of pins 0.3 m apart; lengths 0.35-0.55 m.
+    Each starts bent in the first hanging-chain mode (tip offset 4-7 cm, random
+    azimuth) with a sideways push in the same mode, so it swings on an ellipse
+    whose shape and period differ per strand; the pin plate circles gently
+    (1 cm, 0.7 Hz), which excites higher modes. Soft bending, slight stretch.
+    """
+    rng = np.random.default_rng(seed)
+    # 32 strands at the default size; small requests get fewer, longer ones.
+    n_strands = int(np.clip(vertices // 16, 1, 32))
+    nx = min(8, n_strands)
+    per = max(8, vertices // n_strands)
+    pins = np.stack(np.meshgrid(np.arange(nx) * 0.3, np.arange(-(-n_strands // nx)) * 0.3,
+                                indexing="ij"), -1).reshape(-1, 2)[:n_strands]
+    pins = np.column_stack([pins - pins.mean(0), np.full(n_strands, 1.0)])
+    length = rng.uniform(0.35, 0.55, n_strands)
+    amp = rng.uniform(0.04, 0.07, n_strands)
+    azim = rng.uniform(0, 2 * np.pi, n_strands)
+    ecc = rng.uniform(-0.6, 0.6, n_strands)
+    x, v = _hanging_chains(pins, length, per, amp, azim, ecc)
+    starts, counts = np.arange(n_strands) * per, np.full(n_strands, per)
+    mass = np.full(len(x), 0.02 / per)
+    sim = Solver(x, mass, chain_constraints(starts, counts, stretch=2e-7, bend=2e-5),
+                 drag=1.0)
+    sim.v[:] = v
+    top = starts.copy()
+    base = x[top].copy()
+
+    def pin_fn(t):
+        w = 2 * np.pi * 0.7
+        return base + 0.01 * np.array([np.sin(w * t), 1 - np.cos(w * t), 0.0])
+
+    sim.pin(top, pin_fn)
+    dt = 1.0 / 120.0
+    X = sim.run(frames, dt, substeps=8, iters=12)
+    edges = chain_edges(starts, counts)
+    h = np.linalg.norm(x[edges[:, 0]] - x[edges[:, 1]], axis=1).min()
+    return X, {"edges": edges}, {
+        "dt": dt, "thickness": 0.25 * h,
+        "description": f"rods: {n_strands} pinned strands x {per} vertices swinging "
+                       f"on ellipses (first hanging-chain mode), pin plate circling, XPBD, {1/dt:.0f} Hz"}
+
+
+def cloth(vertices=2304, frames=48, seed=0):
+    """A square sheet hanging from two pinned corners, draping as one pin moves.
+
+    0.8 m x 0.8 m, XPBD stretch/shear/bending springs, air drag. The sheet
+    first settles (not recorded) from a flat vertical start with a small
+    ripple; during the recording the right pin glides 0.2 m toward the left
+    one and 0.1 m forward (smooth ramp), so the sheet swings and folds.
+    """
+    rng = np.random.default_rng(seed)
+    n = max(8, int(round(np.sqrt(vertices))))
+    size = 0.8
+    u, w = np.meshgrid(np.linspace(0, size, n), np.linspace(0, size, n), indexing="ij")
+    u, w = u.ravel(), w.ravel()
+    ph = rng.uniform(0, 2 * np.pi, 2)
+    # The ripple breaks the symmetry so the sheet does not stay planar.
+    ripple = 0.006 * np.sin(7 * u + ph[0]) * np.sin(5 * w + ph[1])
+    x = np.column_stack([u - size / 2, ripple, w + 0.2])
+    faces = grid_faces(n, n)
+    mass = np.full(n * n, 0.15 / (n * n))
+    sim = Solver(x, mass, grid_constraints(n, n, stretch=1e-8, shear=1e-6, bend=1e-4),
+                 drag=3.0)
+    corners = np.array([n - 1, n * n - 1])  # top-left and top-right (w = size)
+    base = x[corners].copy()
+    dt = 1.0 / 120.0
+    settle = 1.0
+    t_move = 1.25 * frames * dt
+
+    def pin_fn(t):
+        r = np.clip((t - settle) / t_move, 0.0, 1.0)
+        ramp = r * r * (3 - 2 * r)
+        out = base.copy()
+        out[1] += ramp * np.array([-0.16, 0.06, 0.0])
+        return out
+
+    sim.pin(corners, pin_fn)
+    sim.settle(settle, dt, substeps=8, iters=12)
+    sim.drag = 1.0
+    X = sim.run(frames, dt, substeps=8, iters=12, t0=settle)
+    h = size / (n - 1)
+    return X, {"faces": faces}, {
+        "dt": dt, "thickness": 0.25 * h,
+        "description": f"cloth: {n}x{n} sheet hanging from two pinned corners, one pin "
+                       f"gliding inward and forward, XPBD, {1/dt:.0f} Hz"}
+
+
+def _smoothstep(r):
+    r = np.clip(r, 0.0, 1.0)
+    return r * r * (3 - 2 * r)
+
+
+def twisting_cloth(vertices=1600, frames=60, seed=0):
+    """A cloth strip held at both ends, one end turning about the long axis.
+
+    0.6 m x 0.1 m strip (about 6:1 vertex grid) held along both short
+    edges; after settling into its gravity sag (not recorded) the right end
+    turns by up to 150 degrees about the strip's long axis on a smooth ramp
+    and is pulled out by 4 % (stretch), the cloth-twist benchmark kept below
+    the twist at which the strip would touch itself.
+    """
+    rng = np.random.default_rng(seed)
+    ny = max(4, int(round(np.sqrt(vertices / 6.0))))
+    nx = max(8, vertices // ny)
+    length, width = 0.6, 0.1
+    u, w = np.meshgrid(np.linspace(0, length, nx), np.linspace(-width / 2, width / 2, ny),
+                       indexing="ij")
+    u, w = u.ravel(), w.ravel()
+    ph = rng.uniform(0, 2 * np.pi)
+    ripple = 0.002 * np.sin(np.pi * u / length) * np.sin(9 * u + ph)
+    x = np.column_stack([u - length / 2, w, 0.5 + ripple])
+    faces = grid_faces(nx, ny)
+    mass = np.full(nx * ny, 0.05 / (nx * ny))
+    sim = Solver(x, mass, grid_constraints(nx, ny, stretch=5e-8, shear=1e-6, bend=1e-4),
+                 drag=3.0)
+    left, right = np.arange(ny), np.arange((nx - 1) * ny, nx * ny)
+    ends = np.concatenate([left, right])
+    base = x[ends].copy()
+    dt = 1.0 / 120.0
+    settle, t_turn = 0.6, 1.25 * frames * dt
+    axis = np.array([1.0, 0.0, 0.0])
+    center = np.array([0.0, 0.0, 0.5])
+
+    def pin_fn(t):
+        r = _smoothstep((t - settle) / t_turn)
+        out = base.copy()
+        turned = _rotate(base[ny:] - center, axis, np.full(ny, np.radians(150.0) * r))
+        out[ny:] = center + turned + np.array([0.04 * length * r, 0, 0])
+        return out
+
+    sim.pin(ends, pin_fn)
+    sim.settle(settle, dt, substeps=8, iters=12)
+    sim.drag = 0.5
+    X = sim.run(frames, dt, substeps=8, iters=12, t0=settle)
+    h = min(length / (nx - 1), width / (ny - 1))
+    return X, {"faces": faces}, {
+        "dt": dt, "thickness": 0.25 * h,
+        "description": f"twisting-cloth: {nx}x{ny} strip held at both ends, one end "
+                       f"turning about the long axis, XPBD, {1/dt:.0f} Hz"}
+
+
+def cables(vertices=1280, frames=60, seed=0):
+    """Separate hanging cables whose anchors move independently (multi-object).
+
+    8 cables (0.8-1.1 m) hang from anchors 0.45 m apart, start swinging in
+    the first hanging-chain mode in their own direction, and each anchor
+    sways along its own horizontal direction with its own amplitude (4-7 cm),
+    frequency and phase, so the cables swing with different phases and
+    directions: one affine map for the scene fits poorly, one per cable
+    (``components``) fits better.
+    """
+    rng = np.random.default_rng(seed)
+    n_cables, nx = 8, 4
+    per = max(8, vertices // n_cables)
+    anchors = np.stack(np.meshgrid(np.arange(nx) * 0.45, np.arange(n_cables // nx) * 0.45,
+                                   indexing="ij"), -1).reshape(-1, 2)
+    anchors = np.column_stack([anchors - anchors.mean(0), np.full(n_cables, 1.5)])
+    length = rng.uniform(0.8, 1.1, n_cables)
+    x, v = _hanging_chains(anchors, length, per, rng.uniform(0.03, 0.06, n_cables),
+                           rng.uniform(0, 2 * np.pi, n_cables), rng.uniform(-0.5, 0.5, n_cables))
+    comp = np.repeat(np.arange(n_cables), per)
+    starts, counts = np.arange(n_cables) * per, np.full(n_cables, per)
+    mass = np.full(len(x), 0.05 / per)
+    sim = Solver(x, mass, chain_constraints(starts, counts, stretch=2e-7, bend=2e-5), drag=0.5)
+    sim.v[:] = v
+    top = starts.copy()
+    base = x[top].copy()
+    dirs = rng.uniform(0, 2 * np.pi, n_cables)
+    amp = rng.uniform(0.04, 0.07, n_cables)
+    freq = rng.uniform(0.5, 1.0, n_cables)
+    phase = rng.uniform(0, 2 * np.pi, n_cables)
+    dvec = np.column_stack([np.cos(dirs), np.sin(dirs), np.zeros(n_cables)])
+
+    def pin_fn(t):
+        # Starts at rest offset 0 and ramps in, so the anchors do not jerk.
+        ramp = _smoothstep(t / 0.25)
+        off = amp * (np.sin(2 * np.pi * freq * t + phase) - np.sin(phase))
+        return base + (ramp * off)[:, None] * dvec
+
+    sim.pin(top, pin_fn)
+    dt = 1.0 / 120.0
+    X = sim.run(frames, dt, substeps=8, iters=12)
+    edges = chain_edges(starts, counts)
+    h = np.linalg.norm(x[edges[:, 0]] - x[edges[:, 1]], axis=1).min()
+    return X, {"edges": edges, "components": comp}, {
+        "dt": dt, "thickness": 0.25 * h,
+        "description": f"cables: {n_cables} separate cables x {per} vertices hanging from "
+                       f"independently swaying anchors, XPBD, {1/dt:.0f} Hz"}
