@@ -19,8 +19,10 @@ from .options import (
 @click.argument("input_path", metavar="IN", type=click.Path(dir_okay=True))
 @click.option("-o", "--output", "output_path", required=True, type=click.Path(dir_okay=False),
               help="Result file (HDF5) to write.")
-@click.option("--model", type=click.Choice(MODELS + ("auto",)), default="affine", show_default=True,
-              help="Map family fitted toward the constant-velocity prediction.")
+@click.option("--model", type=click.Choice(MODELS + ("auto", "per-component")), default="affine",
+              show_default=True,
+              help="Map family fitted toward the constant-velocity prediction; auto: the certified "
+                   "candidate with the fewest predicted CD passes; per-component: one map per object.")
 @click.option("--projection", type=click.Choice(PROJECTIONS), default="auto", show_default=True,
               help="How a map that fails the certificate is made safe.")
 @click.option("--margin", type=click.FloatRange(0.0, 1.0, max_open=True), default=None,

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..constants import MARGIN_GAP_RADIUS_FACTOR
 from ..errors import CertificateError, InputError
-from .certificate import certify
+from .certificate import certify, fast_margin_bound
 from .step import fit_step
 
 
@@ -146,13 +146,22 @@ def deform_sequence(
         out["residual_pred_per_vertex"] = np.empty((S, N), dtype=np.float32)
         out["residual_next_per_vertex"] = np.full((S, N), np.nan, dtype=np.float32)
 
+    per_component = model == "per-component"
+    if per_component:
+        from .components import component_labels, per_component_step
+
+        labels = component_labels(N, seq.edges, seq.faces, seq.components)
+        C = int(labels.max()) + 1
+        # NaN / -1 for steps that could not use per-component maps (start within thickness)
+        comp = {"labels": labels, "A": np.full((S, C, 3, 3), np.nan), "b": np.full((S, C, 3), np.nan),
+                "group": np.full((S, C), -1, dtype=np.int64), "rounds": np.zeros(S, dtype=np.int64)}
     select = model == "auto" and seq.kind != "points"
     if select:
         from .selection import select_step
         from .trust_region import _scene, per_vertex_separation
 
         _, E, F = _scene(pos[0], seq.edges, seq.faces)
-        table_rows = []
+        table_rows = [None] * S
 
     for k, s in enumerate(S_idx):
         x_prev, x = pos[s - 1], pos[s]
@@ -163,19 +172,22 @@ def deform_sequence(
             m, d0 = step_margin(x, seq, thickness, margin, d0=float(d_start.min()) if len(d_start) else r_q)
         else:
             m, d0 = step_margin(x, seq, thickness, margin)
-        if select and m is not None:
-            r, table = select_step(x_prev, x, d_start, r_q=r_q, thickness=thickness, weights=weights,
-                                   margin=m, projection=projection)
-            table_rows.append(table)
+        if m is None:  # start state within the thickness: only a translation is safe
+            r = _applied(fit_step(x_prev, x, weights=weights, model="translation", projection=projection))
+        elif per_component:
+            cs = per_component_step(x_prev, x, labels, edges=seq.edges, faces=seq.faces, thickness=thickness,
+                                    weights=weights, margin=m, projection=projection)
+            comp["A"][k], comp["b"][k], comp["group"][k], comp["rounds"][k] = cs.A, cs.b, cs.group, cs.rounds
+            r = _component_applied(cs)
+        elif select:
+            res, table_rows[k] = select_step(x_prev, x, d_start, r_q=r_q, thickness=thickness, weights=weights,
+                                             margin=m, projection=projection)
+            r = _applied(res)
         else:
-            r = fit_step(
-                x_prev, x, weights=weights, model=model if m is not None else "translation",
-                projection=projection, margin=0.0 if m is None else m,
-            )
-            if select:
-                table_rows.append(None)
-        if not certify(r.A, 0.0 if m is None else m):
-            raise CertificateError(f"step {s}: the applied map failed the exact certificate (margin {m})")
+            r = _applied(fit_step(x_prev, x, weights=weights, model=model, projection=projection, margin=m))
+        for A_applied in r.maps:  # belt and braces: the fast test first, the exact one if needed
+            if not (fast_margin_bound(A_applied) > (m or 0.0) or certify(A_applied, m or 0.0)):
+                raise CertificateError(f"step {s}: the applied map failed the exact certificate (margin {m})")
         out["A"][k], out["b"][k] = r.A, r.b
         out["deformed"][k] = r.x_def
         out["model"][k], out["projection"][k] = r.model, r.projection
@@ -204,6 +216,8 @@ def deform_sequence(
             progress()
 
     groups = {"selection": selection_arrays(table_rows)} if select else {}
+    if per_component:
+        groups["component_maps"] = comp
     out["model"] = out["model"].astype(str)
     out["projection"] = out["projection"].astype(str)
     options = {
@@ -215,6 +229,36 @@ def deform_sequence(
         "per_vertex": bool(per_vertex),
     }
     return DeformOutput(steps=out, options=options, groups=groups)
+
+
+@dataclass
+class _Applied:
+    """What one step applied, whichever stage produced it."""
+
+    A: np.ndarray  # (3, 3); NaN when components moved with different maps
+    b: np.ndarray
+    x_def: np.ndarray
+    model: str
+    projection: str
+    certificate_margin: float
+    rank: int
+    time_fit_s: float
+    maps: list  # every distinct map applied, each to pass the exact certificate
+
+
+def _applied(r) -> _Applied:
+    return _Applied(r.A, r.b, r.x_def, r.model, r.projection, r.certificate_margin, r.rank, r.time_fit_s, [r.A])
+
+
+def _component_applied(cs) -> _Applied:
+    maps = list(np.unique(cs.A, axis=0))
+    if len(np.unique(cs.group)) == 1:  # everything merged: one global map
+        return _Applied(cs.A[0], cs.b[0], cs.x_def, next(iter(cs.models)), "auto", cs.certificate_margin,
+                        cs.rank, cs.time_fit_s, maps)
+    # SPEC: steps/A is *the* map applied; with several there is none (NaN), and
+    # component_maps/A holds each component's map.
+    return _Applied(np.full((3, 3), np.nan), np.full(3, np.nan), cs.x_def, "per-component", "per-component",
+                    cs.certificate_margin, cs.rank, cs.time_fit_s, maps)
 
 
 def selection_arrays(table_rows) -> dict:
