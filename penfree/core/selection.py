@@ -27,9 +27,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import constants as K
+from ..errors import InputError
 from . import fit as _fit
 from .certificate import certified_margin, certify, fast_margin_bound
 from .projection import project
+from .selection_kernels import order_statistic, predict_kernel
 from .step import StepResult
 
 _I3 = np.eye(3)
@@ -111,6 +113,74 @@ def predict_passes(x_def, y, b) -> dict:
     r_max = float(keep.max())
     out.update(r_q99=q99, r_max=r_max, k_1pct=max(1, math.ceil(q99)), k_any=max(1, math.ceil(r_max)))
     return out
+
+
+def _summary(hits, n_blocked, n_all, quantile):
+    """The `predict_passes` dict from the counts and ``quantile() -> (r_q99, r_max)``."""
+    out = {"hit_rate": float(hits / n_all), "n_blocked": int(n_blocked)}
+    if n_blocked == n_all:
+        out.update(k_any=1, k_1pct=1, r_q99=0.0, r_max=0.0)
+        return out
+    q99, r_max = quantile()
+    out.update(r_q99=q99, r_max=r_max, k_1pct=max(1, math.ceil(q99)), k_any=max(1, math.ceil(r_max)))
+    return out
+
+
+def predict_map_passes(x_prev, x, D, u, c, d_start, sigma, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA,
+                       r_buf=None) -> dict:
+    """`predict_passes` of the map ``x_def = x + D (x - c) + u`` without forming x_def.
+
+    Parameters
+    ----------
+    x_prev, x : (N, 3) float32 or float64, C-contiguous
+        As validated by `fit.as_positions`; the target is ``x_pred = 2 x - x_prev``.
+    D : (3, 3) float64
+    u, c : (3,) float64
+    d_start : (N,) float64
+        Start separations (`predicted_bounds`).
+    sigma : float
+        Lower bound of sigma_min(I + D).
+    r_q, thickness, gamma : float
+    r_buf : (N,) float64 or None
+        Scratch for the per-vertex ratios, reused across candidates.
+
+    Returns
+    -------
+    dict
+        The keys and definitions of `predict_passes`.
+
+    Notes
+    -----
+    One fused pass (`selection_kernels.predict_kernel`) forms x_def in float64,
+    rounds it to x's dtype (the stored x_def), and divides its distance to x_pred by
+    ``predicted_bounds(d_start, sigma, r_q, thickness, gamma)``; the 99th percentile
+    ("higher") is then found exactly by `selection_kernels.order_statistic`. Compared
+    with ``predict_passes(apply_map(x, D, u, c)[0], x_pred, predicted_bounds(...))``
+    the only difference is the rounding of x_def: `apply_map` may fuse and reorder
+    its multiply-adds, so x_def can differ in its last bit (tests/core/test_selection.py).
+    """
+    n = x.shape[0]
+    d_start = np.ascontiguousarray(d_start, dtype=np.float64)
+    if d_start.shape != (n,):
+        raise InputError(f"d_start must be ({n},) to match x; got shape {d_start.shape}")
+    r = np.empty(n) if r_buf is None else r_buf
+    s = float(sigma) * (1.0 - K.PREDICT_SLACK_REL)  # the scalar product predicted_bounds forms first
+    D = np.ascontiguousarray(D, dtype=np.float64)
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    c = np.ascontiguousarray(c, dtype=np.float64)
+    hits, n_blocked = predict_kernel(x_prev, x, D, u, c, d_start, s, float(r_q), float(thickness),
+                                     float(gamma), r)
+
+    def quantile():
+        # Blocked vertices hold -inf, below every kept ratio: shift the index past them.
+        n_keep = n - n_blocked
+        rank = n_blocked + -((-K.K_PERCENTILE * (n_keep - 1)) // 100)
+        q99, r_max, ok = order_statistic(r, rank, np.empty(min(n, n // 16 + 4096)))
+        if not ok:
+            q99 = np.partition(r, rank)[rank]
+        return float(q99), float(r_max)
+
+    return _summary(hits, n_blocked, n, quantile)
 
 
 def _certified(name, D, u, rank, m, margin, projection):
@@ -222,24 +292,31 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
 
     Notes
     -----
-    Cost: one moment pass, then per candidate one O(N) pass to apply the map and
-    one to predict; no neighbourhood query.
+    Cost: one moment pass, then per distinct candidate one fused O(N) pass that
+    predicts without forming x_def (`predict_map_passes`) and one pass over the ratios
+    for the percentile; x_def is written once, for the chosen map. No neighbourhood
+    query.
     """
     t0 = time.perf_counter()
-    x = _fit.as_positions(x, "x")
-    x_prev = _fit.as_positions(x_prev, "x_prev", x.shape[0])
+    # NaN/Inf positions are caught by fit_moments from its sums (no extra pass here).
+    x = _fit.as_positions(x, "x", check_finite=False)
+    x_prev = _fit.as_positions(x_prev, "x_prev", x.shape[0], check_finite=False)
     w = _fit.as_weights(weights, x.shape[0])
+    d_start = np.ascontiguousarray(d_start, dtype=np.float64)
+    if d_start.shape != (x.shape[0],):
+        raise InputError(f"d_start must be ({x.shape[0]},) to match x; got shape {d_start.shape}")
     m = _fit.fit_moments(x_prev, x, w, validate=False)
-    x_pred = 2.0 * np.asarray(x, dtype=np.float64) - np.asarray(x_prev, dtype=np.float64)
     cands = candidate_maps(m, margin, projection)
-    buf = np.empty_like(x)
+    r_buf = np.empty(x.shape[0])
+    seen = {}
     for cand in cands:
-        if cand.name == "none":
-            x_def = x
-        else:
-            x_def, _ = _fit.apply_map(x, cand.D, cand.u, m.c, out=buf)
-        b_hat = predicted_bounds(d_start, cand.sigma_lb, r_q, thickness, gamma)
-        cand.predicted = predict_passes(x_def, x_pred, b_hat)
+        # Clamps and blends often coincide with the plain fit (singular values already
+        # inside the clamp): the same A, u and sigma give the same prediction.
+        key = (cand.A.tobytes(), cand.u.tobytes(), cand.sigma_lb)
+        if key not in seen:
+            seen[key] = predict_map_passes(x_prev, x, cand.D, cand.u, m.c, d_start, cand.sigma_lb, r_q,
+                                           thickness, gamma, r_buf=r_buf)
+        cand.predicted = dict(seen[key])
     k = choose(cands)
     best = cands[k]
     x_def, stats = _fit.apply_map(x, best.D, best.u, m.c, out=out, x_prev=x_prev)

@@ -496,12 +496,25 @@ def _file_md(rep):
     lad = rep.get("ladder")
     if lad:
         out.append("### Model ladder: speed against error\n")
-        out.append(_table(["model", "fit ms/step (median)", "residual RMS x_next", "residual RMS x_pred", "K_1pct x_next",
-                           "hit rate x_next", "min margin", "models used"],
-                          [[r["model"], _f(r.get("fit_ms_median")), _f(r["residual_next_rms"]), _f(r["residual_pred_rms"]),
-                            _f(r["k_1pct_next"]), _pct(r["hit_rate_next"]), _f(r["certificate_margin_min"]),
-                            ", ".join(f"{k} x{v}" for k, v in (r["models_used"] or {}).items())]
-                           for r in lad["rows"]]))
+        out.append("Every step re-fitted with each model; CD-pass figures are *actual*: bounds recomputed at "
+                   "each model's deformed state, target the simulator's next frame. `K_1pct sum` is summed "
+                   "over the steps. `x_pred` is the unsafe ideal (the prediction itself, uncertified), a "
+                   "ceiling, not an option.\n")
+        replay = any(r.get("replay_k_1pct_next") == r.get("replay_k_1pct_next") and r.get("replay_k_1pct_next")
+                     is not None for r in lad["rows"])
+        head = ["model", "fit ms/step (median)", "residual RMS x_next", "residual RMS x_pred", "K_1pct x_next",
+                "K_1pct sum", *(["replay K_1pct"] if replay else []), "hit rate x_next", "min margin",
+                "models used"]
+        out.append(_table(head, [[r["model"], _f(r.get("fit_ms_median")), _f(r["residual_next_rms"]),
+                                  _f(r["residual_pred_rms"]), _f(r["k_1pct_next"]), _f(r.get("k_1pct_next_sum")),
+                                  *([_f(r.get("replay_k_1pct_next"))] if replay else []),
+                                  _pct(r["hit_rate_next"]), _f(r["certificate_margin_min"]),
+                                  ", ".join(f"{k} x{v}" for k, v in (r["models_used"] or {}).items())]
+                                 for r in lad["rows"]]))
+        rate = lad.get("auto_best_rate")
+        if rate is not None and rate == rate:
+            out.append(f"\n`auto` chose a map whose actual K_1pct was the best of baseline and the fixed "
+                       f"models on {_pct(rate)} of the steps.\n")
     return "\n".join(out)
 
 

@@ -95,7 +95,8 @@ def test_ladder_and_replay(result, tmp_path):
     assert r.exit_code == 0, r.output
     f = json.loads(r.output)["files"][0]
     assert [row["model"] for row in f["ladder"]["rows"]] == ["baseline", "translation", "rigid", "similarity",
-                                                              "affine", "auto"]
+                                                              "affine", "auto", "x_pred"]
+    assert 0.0 <= f["ladder"]["auto_best_rate"] <= 1.0
     assert "replay_k_1pct" in f["summary"]["projected"]
 
 

@@ -53,8 +53,9 @@ def test_ladder_with_oracle_fit(rng):
     seen = []
     lad = model_ladder(pos, frames, models=("translation", "affine"), bounds_fn=_far_bounds, fit_fn=fit,
                        progress=lambda: seen.append(1))
-    assert lad["models"] == ["baseline", "translation", "affine"]
+    assert lad["models"] == ["baseline", "translation", "affine", "x_pred"]
     assert (lad["n_steps"], lad["n_steps_next"]) == (4, 3) and len(seen) == 4
+    assert math.isnan(lad["auto_best_rate"])  # no auto in this ladder
     # warm-up (LADDER_WARMUP_CALLS per model), then one call per model and step
     assert calls[:4] == ["translation"] * 2 + ["affine"] * 2 and len(calls) == 4 + 2 * 4
     rows = {r["model"]: r for r in lad["rows"]}
@@ -70,6 +71,9 @@ def test_ladder_with_oracle_fit(rng):
     assert rows["baseline"]["k_any_next"] >= rows["translation"]["k_any_next"] >= 1
     assert rows["affine"]["models_used"] == {"affine": 4}
     assert rows["affine"]["certificate_margin_mean"] == 0.5
+    # the x_pred ceiling is the prediction itself: zero residual to x_pred
+    assert rows["x_pred"]["residual_pred_rms"] == 0.0
+    assert rows["x_pred"]["residual_next_rms"] == pytest.approx(rows["affine"]["residual_next_rms"], abs=1e-12)
     for m in lad["models"]:
         assert set(lad["steps"][m]) == set(LADDER_FIGURES)
         assert np.isnan(lad["steps"][m]["k_1pct_next"][-1])  # the last step has no next frame
@@ -92,7 +96,7 @@ def test_ladder_with_fit_step(rng):
     pos = _affine_motion(rng)
     frames = np.arange(1, pos.shape[0])
     lad = model_ladder(pos, frames, bounds_fn=_far_bounds)
-    assert lad["models"] == ["baseline", *LADDER_MODELS]
+    assert lad["models"] == ["baseline", *LADDER_MODELS, "x_pred"]
     rows = {r["model"]: r for r in lad["rows"]}
     scale = rows["baseline"]["residual_next_rms"]
     assert rows["affine"]["residual_next_rms"] <= 1e-9 * scale

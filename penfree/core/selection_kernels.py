@@ -1,0 +1,132 @@
+"""Numba kernels of the collision-aware model choice (`penfree.core.selection`).
+
+`predict_kernel` evaluates one candidate map in a single pass over the vertices:
+the deformed position, its distance to the prediction and the predicted bound are
+formed on the fly (``x_def`` is never written), leaving only ``r_v`` in a reusable
+buffer. `order_statistic` then finds one order statistic of that buffer exactly with
+a deterministic sampled pivot, touching the buffer once more instead of sorting it.
+
+No fastmath anywhere: the ratios feed the choice of a certified map and are compared
+against `predict_passes`, so the arithmetic is IEEE as written.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from .. import constants as K
+from .fit_kernels import _named
+
+
+def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, r, n_chunks):
+    # Per vertex, with the same operations (and order) as
+    #   predict_passes(apply_map(x, D, u, c), 2 x - x_prev, predicted_bounds(d_start, ...)):
+    #   x_def = x + (D (x - c) + u), rounded to the stored dtype;
+    #   dist  = |x_pred - x_def| with x_pred = 2 x - x_prev in float64;
+    #   b     = gamma * max(0, min(r_q, s * d_start) - thickness), s = sigma (1 - slack).
+    # A blocked vertex (moving, b not > 0) gets r = -inf, so that the non-blocked
+    # ratios are exactly the top N - n_blocked entries of r in sorted order.
+    n = x.shape[0]
+    d00, d01, d02 = D[0, 0], D[0, 1], D[0, 2]
+    d10, d11, d12 = D[1, 0], D[1, 1], D[1, 2]
+    d20, d21, d22 = D[2, 0], D[2, 1], D[2, 2]
+    u0, u1, u2 = u[0], u[1], u[2]
+    c0, c1, c2 = c[0], c[1], c[2]
+    part = np.zeros((n_chunks, 2), dtype=np.int64)
+    for k in prange(n_chunks):
+        lo = k * n // n_chunks
+        hi = (k + 1) * n // n_chunks
+        hits = 0
+        blocked = 0
+        for i in range(lo, hi):
+            a0, a1, a2 = np.float64(x[i, 0]), np.float64(x[i, 1]), np.float64(x[i, 2])
+            p0, p1, p2 = a0 - c0, a1 - c1, a2 - c2
+            v0 = a0 + (d00 * p0 + d01 * p1 + d02 * p2 + u0)
+            v1 = a1 + (d10 * p0 + d11 * p1 + d12 * p2 + u1)
+            v2 = a2 + (d20 * p0 + d21 * p1 + d22 * p2 + u2)
+            if out32:
+                v0 = np.float64(np.float32(v0))
+                v1 = np.float64(np.float32(v1))
+                v2 = np.float64(np.float32(v2))
+            e0 = (2.0 * a0 - np.float64(x_prev[i, 0])) - v0
+            e1 = (2.0 * a1 - np.float64(x_prev[i, 1])) - v1
+            e2 = (2.0 * a2 - np.float64(x_prev[i, 2])) - v2
+            dist = np.sqrt((e0 * e0 + e1 * e1) + e2 * e2)
+            # np.minimum / np.maximum semantics, NaN propagating.
+            t = s * d_start[i]
+            t = r_q if r_q < t else t
+            t = t - thickness
+            b = gamma * (0.0 if t < 0.0 else t)
+            moving = dist > 0.0
+            is_blocked = moving and not b > 0.0
+            rv = dist / b if moving and not is_blocked else 0.0
+            r[i] = -np.inf if is_blocked else rv
+            blocked += is_blocked
+            hits += (not is_blocked) and rv <= 1.0
+        part[k, 0] = hits
+        part[k, 1] = blocked
+    res = np.zeros(2, dtype=np.int64)
+    for k in range(n_chunks):
+        res[0] += part[k, 0]
+        res[1] += part[k, 1]
+    return res
+
+
+_predict_serial = njit(cache=True)(_named(_predict_py, "_predict_serial"))
+_predict_parallel = njit(cache=True, parallel=True)(_named(_predict_py, "_predict_parallel"))
+
+
+def predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r):
+    """Fill `r` (N,) float64 with the candidate's ratios; return ``(hits, n_blocked)``.
+
+    Inputs as validated by `selection.select_step`; ``s = sigma * (1 - PREDICT_SLACK_REL)``.
+    The chunks are fixed (`REDUCTION_CHUNKS`) and the sums are integers, so the result
+    does not depend on the thread count.
+    """
+    big = x.shape[0] >= K.PARALLEL_MIN_VERTICES
+    out32 = x.dtype == np.float32
+    res = (_predict_parallel if big else _predict_serial)(
+        x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, r, K.REDUCTION_CHUNKS)
+    return int(res[0]), int(res[1])
+
+
+#: Sample size of the pivot estimate in `order_statistic` (sorted, so keep it small).
+_SAMPLE = 1024
+
+
+@njit(cache=True)
+def order_statistic(r, rank, scratch):
+    """``(sorted(r)[rank], max(r), ok)`` without sorting `r` (serial, deterministic).
+
+    A fixed-stride sample of `r` gives a pivot a little below the wanted value; one
+    pass copies the entries >= pivot into `scratch`, and the answer is their order
+    statistic. ``ok`` is False when the pivot missed (too few or too many entries
+    above it); the caller then falls back to a full partition. `rank` must be in
+    ``[0, len(r))``.
+    """
+    n = r.shape[0]
+    top = n - rank  # the answer is the top-th largest entry
+    step = max(1, n // _SAMPLE)
+    sample = np.sort(r[::step])
+    m = sample.shape[0]
+    # Expected sample entries at or above the answer, doubled, plus a margin of
+    # several standard deviations of a binomial count.
+    want = 2.0 * m * top / n + 4.0 * np.sqrt(m * top / n) + 8.0
+    j = max(0, m - int(want))
+    pivot = sample[j]
+    cap = scratch.shape[0]
+    cnt = 0
+    r_max = -np.inf
+    for i in range(n):
+        v = r[i]
+        if v > r_max:
+            r_max = v
+        if v >= pivot:
+            if cnt < cap:
+                scratch[cnt] = v
+            cnt += 1
+    if cnt < top or cnt > cap:
+        return 0.0, r_max, False
+    sel = np.sort(scratch[:cnt])
+    return sel[cnt - top], r_max, True

@@ -1,0 +1,158 @@
+"""Topology helpers: unique edges of a triangle mesh, vertex -> primitive
+incidence (CSR), and the one-time validation of positions and index arrays
+that the public functions of the proximity stages share.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+
+
+def as_positions(V, name: str = "V") -> np.ndarray:
+    """Validate and convert positions once.
+
+    Parameters
+    ----------
+    V : (N, 3) array_like of float
+        Any float (or integer) dtype; converted to float64.
+    name : str
+        Name used in the error message.
+
+    Returns
+    -------
+    (N, 3) float64, C-contiguous (a copy only if a conversion was needed).
+
+    Raises
+    ------
+    InputError
+        If the shape is not (N, 3) or a value is not finite.
+    """
+    V = np.asarray(V)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise InputError(f"{name} must be (N, 3); got {V.shape}")
+    if not (np.issubdtype(V.dtype, np.floating) or np.issubdtype(V.dtype, np.integer)):
+        raise InputError(f"{name} must be a float array; got dtype {V.dtype}")
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    if not np.isfinite(V).all():
+        raise InputError(f"{name} must be finite; got NaN or inf")
+    return V
+
+
+def as_topology(T, k: int, n_vertices: int, name: str = "E") -> np.ndarray:
+    """Validate and convert an index array of k-vertex primitives once.
+
+    Parameters
+    ----------
+    T : (M, k) array_like of int, or None
+        Edges (k = 2) or faces (k = 3). None gives an empty (0, k) array.
+    k : int
+    n_vertices : int
+        Indices must lie in ``[0, n_vertices)``.
+    name : str
+        Name used in the error message.
+
+    Returns
+    -------
+    (M, k) int64, C-contiguous.
+
+    Raises
+    ------
+    InputError
+        On a wrong shape, a non-integer dtype, or an index out of range.
+    """
+    if T is None:
+        return np.zeros((0, k), dtype=np.int64)
+    T = np.asarray(T)
+    if T.size == 0:
+        return np.zeros((0, k), dtype=np.int64)
+    if T.ndim != 2 or T.shape[1] != k:
+        raise InputError(f"{name} must be (M, {k}); got {T.shape}")
+    if not np.issubdtype(T.dtype, np.integer):
+        raise InputError(f"{name} must be an integer array; got dtype {T.dtype}")
+    T = np.ascontiguousarray(T, dtype=np.int64)
+    lo, hi = int(T.min()), int(T.max())
+    if lo < 0 or hi >= n_vertices:
+        raise InputError(
+            f"{name} indices must lie in [0, {n_vertices}); got range [{lo}, {hi}]"
+        )
+    return T
+
+
+def edges_from_faces(F) -> np.ndarray:
+    """Unique undirected edges of a triangle mesh.
+
+    Parameters
+    ----------
+    F : (F, 3) array_like of int
+        Non-negative vertex indices.
+
+    Returns
+    -------
+    E : (E, 2) int64
+        Each row sorted (``E[:, 0] < E[:, 1]``), rows sorted lexicographically.
+        Edges of degenerate faces that repeat a vertex (``i == j``) are dropped:
+        they are not edges.
+
+    Examples
+    --------
+    >>> edges_from_faces([[0, 1, 2], [2, 1, 3]]).tolist()
+    [[0, 1], [0, 2], [1, 2], [1, 3], [2, 3]]
+    """
+    F = np.asarray(F)
+    if F.size == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    if F.ndim != 2 or F.shape[1] != 3:
+        raise InputError(f"faces must be (F, 3); got {F.shape}")
+    if not np.issubdtype(F.dtype, np.integer):
+        raise InputError(f"faces must be an integer array; got dtype {F.dtype}")
+    F = F.astype(np.int64, copy=False)
+    if F.min() < 0:
+        raise InputError(f"faces indices must be >= 0; got {int(F.min())}")
+    a = np.concatenate([F[:, 0], F[:, 1], F[:, 2]])
+    b = np.concatenate([F[:, 1], F[:, 2], F[:, 0]])
+    lo = np.minimum(a, b)
+    hi = np.maximum(a, b)
+    keep = lo != hi
+    lo, hi = lo[keep], hi[keep]
+    # One int64 key per edge: np.unique on a 1-D key is far faster than axis=0.
+    base = np.int64(hi.max()) + 1 if hi.size else np.int64(1)
+    key = np.unique(lo * base + hi)
+    return np.ascontiguousarray(np.stack([key // base, key % base], axis=1))
+
+
+def vertex_incidence(T, n_vertices: int):
+    """CSR map from each vertex to the primitives that contain it.
+
+    Parameters
+    ----------
+    T : (M, k) int64
+        Validated primitives (edges or faces).
+    n_vertices : int
+
+    Returns
+    -------
+    offsets : (n_vertices + 1,) int64
+    prims : (sum of degrees,) int64
+        The primitives containing vertex ``v`` are
+        ``prims[offsets[v]:offsets[v + 1]]``, in increasing order; a primitive
+        repeating a vertex is listed once per occurrence.
+    """
+    T = np.asarray(T, dtype=np.int64)
+    flat = T.ravel()
+    prim = np.repeat(np.arange(T.shape[0], dtype=np.int64), T.shape[1])
+    order = np.argsort(flat, kind="stable")
+    counts = np.bincount(flat, minlength=n_vertices).astype(np.int64)
+    offsets = np.zeros(n_vertices + 1, dtype=np.int64)
+    np.cumsum(counts, out=offsets[1:])
+    return offsets, np.ascontiguousarray(prim[order])
+
+
+def referenced_vertices(n_vertices: int, *topologies) -> np.ndarray:
+    """(n_vertices,) bool: True where a vertex belongs to at least one primitive."""
+    used = np.zeros(n_vertices, dtype=bool)
+    for T in topologies:
+        if T is not None and np.size(T):
+            used[np.asarray(T).ravel()] = True
+    return used

@@ -1,0 +1,164 @@
+"""`penfree verify` end to end, in-process with click's CliRunner."""
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from penfree import Sequence
+from penfree.cli import main
+from penfree.formats import write_sequence
+
+
+def sheets(n=4, gap=0.5):
+    """Two parallel unit-spaced sheets, the lower one shifted by (0.3, 0.3)."""
+    ij = np.stack(np.meshgrid(np.arange(n), np.arange(n), indexing="ij"), -1).reshape(-1, 2).astype(float)
+    F = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a = i * n + j
+            F += [[a, a + n, a + 1], [a + 1, a + n, a + n + 1]]
+    F = np.array(F)
+    V = np.r_[np.c_[ij + 0.3, np.zeros(len(ij))], np.c_[ij, np.full(len(ij), gap)]]
+    return V, np.r_[F, F + n * n]
+
+
+def cloth_frames(T=4):
+    V, F = sheets()
+    frames = np.stack([V + [0.1 * s, 0.05 * s * s, 0.2 * s] for s in range(T)])  # rigid, accelerating
+    return frames, F
+
+
+def rod_frames(T=4):
+    V = np.array([[i, 0.0, r] for r in range(2) for i in range(5)], float)
+    E = np.array([[r * 5 + i, r * 5 + i + 1] for r in range(2) for i in range(4)])
+    frames = np.stack([V + [0.0, 0.1 * s, 0.0] for s in range(T)])
+    return frames, E
+
+
+def write_h5(path, positions, edges=None, faces=None, thickness=None):
+    with h5py.File(path, "w") as f:
+        f.create_dataset("positions", data=positions)
+        if edges is not None:
+            f.create_dataset("edges", data=edges)
+        if faces is not None:
+            f.create_dataset("faces", data=faces)
+        f.attrs["penfree_format"] = 1
+        if thickness is not None:
+            f.attrs["thickness"] = thickness
+
+
+def run(*args):
+    return CliRunner().invoke(main, ["verify", *map(str, args)], catch_exceptions=False)
+
+
+def test_clean_cloth_sequence_passes(tmp_path):
+    frames, F = cloth_frames()
+    p = tmp_path / "cloth.h5"
+    write_h5(p, frames, faces=F)
+    r = run(p)
+    assert r.exit_code == 0, r.output
+    assert r.output.count(": OK") == 3 and "all steps safe" in r.output
+
+
+def test_vertex_pushed_through_face_fails_and_names_pair(tmp_path):
+    frames, F = cloth_frames()
+    frames[2, 5, 2] = frames[1, 5, 2] + 1.0  # lower-sheet vertex 5 jumps through the upper sheet
+    p = tmp_path / "cloth_bad.h5"
+    write_h5(p, frames, faces=F)
+    r = run(p, "--json")
+    assert r.exit_code == 1, r.output
+    rep = json.loads(r.output)
+    assert not rep["ok"] and rep["n_failed"] >= 1
+    bad = [s for s in rep["steps"] if not s["ok"]]
+    assert bad[0]["frame"] == 1
+    assert any(k == "vf" and v == 5 for k, v, _, _ in bad[0]["pairs"])
+    text = run(p)
+    assert text.exit_code == 1 and "VIOLATION" in text.output and "vf 5-" in text.output
+
+
+def test_rod_through_rod_fails(tmp_path):
+    frames, E = rod_frames()
+    frames[3, 5:, 2] = -1.0  # upper rod drops through the lower one in step 2 -> 3
+    p = tmp_path / "rods.h5"
+    write_h5(p, frames, edges=E)
+    r = run(p)
+    assert r.exit_code == 1
+    assert "step     2 -> frame 3: VIOLATION" in r.output and "ee " in r.output
+    assert "step     0 -> frame 1: OK" in r.output
+    # the violating step alone, and the clean ones alone
+    assert run(p, "--frames", "0:3").exit_code == 0
+    assert run(p, "--frames", "2:").exit_code == 1
+
+
+def test_thickness_from_file_and_option(tmp_path):
+    frames, E = rod_frames()
+    p = tmp_path / "rods_thick.h5"
+    write_h5(p, frames, edges=E, thickness=1.5)  # rods are 1 apart: the start state violates
+    r = run(p, "--json", "--max-pairs", "2")
+    assert r.exit_code == 1
+    step = json.loads(r.output)["steps"][0]
+    assert not step["start_ok"] and len(step["start_violations"]) == 2 and step["n_start_violations"] > 2
+    assert run(p, "--thickness", "0.5").exit_code == 0
+
+
+def test_start_state_intersection_reported(tmp_path):
+    frames, F = cloth_frames(T=2)
+    rod = np.array([[1.5, 1.6, -1.0], [1.5, 1.6, 2.0]])
+    pos = np.stack([np.r_[fr, rod + [0.1 * s, 0, 0.2 * s]] for s, fr in enumerate(frames)])
+    p = tmp_path / "pierced.h5"
+    n = frames.shape[1]
+    write_h5(p, pos, faces=F, edges=np.array([[n, n + 1]]))
+    r = run(p)
+    assert r.exit_code == 1 and "start state: 2 pair(s)" in r.output and "ef " in r.output
+
+
+def test_deform_result_verifies(tmp_path):
+    from penfree.core.pipeline import deform_sequence
+    from penfree.formats.result import write_result
+
+    frames, F = cloth_frames(T=5)
+    seq = Sequence(positions=frames, faces=F, origin="cloth").validate()
+    out = deform_sequence(seq)
+    p = tmp_path / "res.h5"
+    write_result(p, seq, out.steps, {"input": "cloth"})
+    for mode in ("auto", "ccd", "certificate"):
+        r = run(p, "--mode", mode, "--json")
+        assert r.exit_code == 0, (mode, r.output)
+        rep = json.loads(r.output)
+        assert rep["kind"] == "result" and rep["n_steps"] == 4
+        assert all(s["certificate"] for s in rep["steps"])
+        assert {s["method"] for s in rep["steps"]} == ({"ccd"} if mode == "ccd" else {"certificate"})
+    # tamper with a deformed state: the certificate path must not vouch for it
+    with h5py.File(p, "r+") as f:
+        d = f["steps/deformed"][()]
+        d[1, 5, 2] += 1.0
+        f["steps/deformed"][...] = d
+    assert run(p, "--mode", "auto").exit_code == 1
+    assert run(p, "--mode", "ccd").exit_code == 1
+    assert run(p, "--mode", "certificate").exit_code == 1
+
+
+def test_bad_input_exit_2(tmp_path):
+    p = tmp_path / "broken.h5"
+    p.write_bytes(b"not an hdf5 file")
+    r = CliRunner().invoke(main, ["verify", str(p)])
+    assert r.exit_code == 2 and "error" in r.output
+    q = tmp_path / "bad_faces.h5"
+    frames, F = cloth_frames(T=2)
+    write_h5(q, frames, faces=F + 1000)
+    r = CliRunner().invoke(main, ["verify", str(q)])
+    assert r.exit_code == 2
+    r = CliRunner().invoke(main, ["verify", str(tmp_path / "missing.h5")])
+    assert r.exit_code == 2
+
+
+@pytest.mark.parametrize("args", [["--frames", "x"], ["--thickness", "-1"]], ids=["bad-frames", "negative-thickness"])
+def test_bad_arguments_exit_2(tmp_path, args):
+    frames, E = rod_frames()
+    p = tmp_path / "rods.h5"
+    write_sequence(str(p), Sequence(positions=frames, edges=E).validate())
+    r = CliRunner().invoke(main, ["verify", str(p), *args])
+    assert r.exit_code == 2

@@ -1,0 +1,73 @@
+"""Topology helpers against direct Python constructions."""
+
+import numpy as np
+import pytest
+
+from penfree.core.topology import (
+    as_positions,
+    as_topology,
+    edges_from_faces,
+    referenced_vertices,
+    vertex_incidence,
+)
+from penfree.errors import InputError
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(11)
+
+
+def test_edges_from_faces_matches_set(rng):
+    F = rng.integers(0, 40, (120, 3))
+    want = sorted({tuple(sorted((int(f[a]), int(f[b])))) for f in F for a, b in ((0, 1), (1, 2), (2, 0))
+                   if f[a] != f[b]})
+    E = edges_from_faces(F)
+    assert E.dtype == np.int64 and E.flags.c_contiguous
+    assert E.tolist() == [list(e) for e in want]
+
+
+def test_edges_of_a_grid():
+    # an n x n vertex grid triangulated into 2 (n-1)^2 faces has
+    # 2 n (n - 1) axis edges plus (n - 1)^2 diagonals
+    n = 6
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    F = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    E = edges_from_faces(F)
+    assert len(E) == 2 * n * (n - 1) + (n - 1) ** 2
+    assert np.all(E[:, 0] < E[:, 1])
+
+
+def test_edges_from_faces_degenerate_and_empty():
+    assert edges_from_faces([[0, 0, 1]]).tolist() == [[0, 1]]
+    assert edges_from_faces(np.zeros((0, 3), int)).shape == (0, 2)
+    with pytest.raises(InputError, match=r"faces must be \(F, 3\)"):
+        edges_from_faces([[0, 1]])
+    with pytest.raises(InputError, match="integer"):
+        edges_from_faces([[0.0, 1.0, 2.0]])
+
+
+def test_vertex_incidence(rng):
+    F = rng.integers(0, 25, (60, 3))
+    offsets, prims = vertex_incidence(F, 30)
+    assert offsets.shape == (31,) and offsets[-1] == F.size
+    for v in range(30):
+        want = [f for f in range(len(F)) for c in F[f] if c == v]
+        assert prims[offsets[v]:offsets[v + 1]].tolist() == want
+
+
+def test_referenced_vertices():
+    used = referenced_vertices(6, np.array([[0, 1]]), None, np.array([[3, 4, 1]]))
+    assert used.tolist() == [True, True, False, True, True, False]
+
+
+def test_validation_messages():
+    with pytest.raises(InputError, match=r"V must be \(N, 3\); got \(4, 2\)"):
+        as_positions(np.zeros((4, 2)))
+    with pytest.raises(InputError, match="finite"):
+        as_positions(np.array([[0.0, np.inf, 0.0]]))
+    with pytest.raises(InputError, match=r"E indices must lie in \[0, 3\); got range \[-1, 2\]"):
+        as_topology(np.array([[0, 2], [-1, 1]]), 2, 3)
+    assert as_positions(np.ones((2, 3), np.float32)).dtype == np.float64
+    assert as_topology(None, 3, 5).shape == (0, 3)
