@@ -13,14 +13,17 @@ from .options import overwrite_option
               help="Output format (default: from OUT's name).")
 @click.option("--from-format", "in_format", type=click.Choice(FORMAT_NAMES), default=None,
               help="Input format (default: from IN's name and content).")
+@click.option("--deformed", is_flag=True,
+              help="IN is a `penfree deform` result: write its deformed states (one frame per step).")
 @overwrite_option
-def command(input_path, output_path, out_format, in_format, overwrite):
+def command(input_path, output_path, out_format, in_format, deformed, overwrite):
     """Convert the sequence IN to OUT (written atomically; IN is never modified).
 
     \b
       penfree convert frames.h5 frames.xdmf          # + frames.xdmf.h5, for ParaView
       penfree convert 'out/A%08d.ply' frames.h5
       penfree convert frames.h5 meshes/ --format meshseq   # meshes/frame_0000.ply ...
+      penfree convert deformed.h5 deformed.xdmf --deformed # the deformed states
     """
     from ..formats import detect_format, output_paths, read_sequence, write_sequence
     from ..formats.atomic import check_output
@@ -30,6 +33,11 @@ def command(input_path, output_path, out_format, in_format, overwrite):
     inputs = output_paths(input_path, in_format)  # XDMF input: its heavy-data file too
     for p in output_paths(output_path, out_format):
         check_output(p, overwrite, inputs=inputs)
-    seq = read_sequence(input_path, format=in_format)
+    if deformed:
+        from ..formats.result import deformed_sequence, read_result
+
+        seq = deformed_sequence(read_result(input_path))
+    else:
+        seq = read_sequence(input_path, format=in_format)
     write_sequence(output_path, seq, format=out_format, overwrite=overwrite)
     click.echo(f"wrote {output_path} ({out_format}): {seq.n_frames} frames, {seq.n_vertices} vertices, {seq.kind}")

@@ -226,3 +226,22 @@ def is_result_file(path) -> bool:
             return isinstance(f.get("steps/frame"), h5py.Dataset)
     except Exception:  # any unreadable file is simply not a result file
         return False
+
+
+def deformed_sequence(result: DeformResult) -> Sequence:
+    """The deformed states of a result as a sequence (one frame per step), e.g. for ParaView.
+
+    Frame k is ``steps/deformed[k]``, the deformed state of step ``steps/frame[k]``;
+    topology, thickness and dt are the input's. The step frames are kept in
+    ``attrs["deformed_from_frames"]``.
+    """
+    seq = result.sequence
+    deformed = result.steps["deformed"]
+    if deformed.shape[0] < 2:
+        raise InputError(f"--deformed needs at least 2 steps to make a sequence; got {deformed.shape[0]} "
+                         f"in {result.origin}:/steps/deformed")
+    out = Sequence(positions=deformed, edges=seq.edges, faces=seq.faces, weights=seq.weights,
+                   components=seq.components, thickness=seq.thickness, dt=seq.dt,
+                   source=f"deformed states of {result.origin}", origin=f"{result.origin}:/steps/deformed",
+                   attrs={"deformed_from_frames": ",".join(str(int(f)) for f in result.steps["frame"])})
+    return out.validate()

@@ -122,3 +122,23 @@ def test_failure_midway_leaves_no_file(tmp_path, monkeypatch):
     r = _run("convert", src, tmp_path / "out.h5")
     assert r.exit_code == 130 and "no output written" in r.stderr
     assert sorted(os.listdir(tmp_path)) == ["in.npz"]
+
+
+def test_deformed_states_export(tmp_path):
+    # A deform result's deformed states become a sequence (one frame per step) that
+    # ParaView can animate; a raw sequence is refused with exit 2 and nothing written.
+    src = tmp_path / "in.h5"
+    write_sequence(src, _seq(np.float64))
+    res = tmp_path / "res.h5"
+    assert _run("deform", src, "-o", res).exit_code == 0
+    r = _run("convert", res, tmp_path / "def.xdmf", "--deformed")
+    assert r.exit_code == 0, r.output
+    from penfree.formats.result import read_result
+
+    steps = read_result(res).steps
+    back = read_sequence(tmp_path / "def.xdmf")
+    np.testing.assert_array_equal(back.positions, steps["deformed"])
+    np.testing.assert_array_equal(back.faces, _seq().faces)
+    bad = _run("convert", src, tmp_path / "x.xdmf", "--deformed")
+    assert bad.exit_code == 2 and not (tmp_path / "x.xdmf").exists()
+    assert "in.h5" in bad.output
