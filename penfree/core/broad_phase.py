@@ -3,8 +3,8 @@ overlap, found with a hierarchical loose grid in Numba.
 
 Design (measured against sort-and-sweep and a plain uniform grid; figures in
 the lead's report). Every box of the "grid" set B is entered ONCE, into the
-cell of its centre, on the level whose cell size h_L = h_0 4^L is at least
-the box's extent (h_0 from the median extent). A box of set A finds every B
+cell of its centre, on the level whose cell size h_L = h_0 2^L is at least
+the box's extent (h_0 from the 95th percentile of the extents). A box of set A finds every B
 box that can overlap it on level L among the centres within h_L / 2 of A's
 box, i.e. in a small block of cells. No pair is seen twice (no duplicate
 removal), memory is one entry per box, and a few huge boxes (fast-moving
@@ -31,9 +31,12 @@ from ..errors import InputError
 from .distance import edge_edge_sq, point_edge_sq, point_triangle_sq
 from .topology import as_positions, as_topology
 
-#: Cell size of level 0 in units of the median box extent (tuned on 64K cloth
-#: and yarn scenes, 1.0 .. 2.0 within 15%).
+#: Cell size of level 0: this factor times the `_CELL_QUANTILE` quantile of
+#: the box extents (tuned on the 64K cloth and yarn scenes).
 _CELL_FACTOR = 1.0
+_CELL_QUANTILE = 0.95
+#: Cell size ratio of consecutive levels.
+_LEVEL_RATIO = 2
 #: Cells per axis are capped so that a cell key fits int64 (2^20 ^ 3 = 2^60).
 _MAX_DIM = 1 << 20
 #: A level's cell table is dense (no hashing) while it has at most this many
@@ -284,8 +287,8 @@ def _min_rows(self_query, loA, hiA, TA, TB, origin, lev_h, lev_dims, lev_bits, l
                        partial[c])
 
 
-def _median(x):
-    k = x.shape[0] // 2
+def _quantile(x, q):
+    k = min(int(q * x.shape[0]), x.shape[0] - 1)
     return float(np.partition(x, k)[k])
 
 
@@ -302,18 +305,19 @@ class _Plan:
         cornB, extB = (cornA, extA) if self_query else _box_stats(loB, hiB)
         origin = np.minimum(cornA[0], cornB[0])
         span = float((np.maximum(cornA[1], cornB[1]) - origin).max())
-        h0 = _CELL_FACTOR * _median(extB)
+        h0 = _CELL_FACTOR * _quantile(extB, _CELL_QUANTILE)
         if not h0 > 0.0:
-            h0 = _CELL_FACTOR * _median(extA)
+            h0 = _CELL_FACTOR * _quantile(extA, _CELL_QUANTILE)
         if not h0 > 0.0:
             h0 = span / np.cbrt(loA.shape[0] + loB.shape[0]) if span > 0.0 else 1.0
         h0 = max(h0, span / (_MAX_DIM - 2))
-        # level of each B box: the smallest L with extent <= h0 4^L
+        # level of each B box: the smallest L with extent <= h0 R^L
         level = np.zeros(loB.shape[0], dtype=np.int64)
         big = extB > h0
         if big.any():
-            level[big] = np.ceil(np.log(extB[big] / h0) / np.log(4.0)).astype(np.int64)
-            level[big] += extB[big] > h0 * 4.0 ** level[big]
+            R = float(_LEVEL_RATIO)
+            level[big] = np.ceil(np.log(extB[big] / h0) / np.log(R)).astype(np.int64)
+            level[big] += extB[big] > h0 * R ** level[big]
         order = np.argsort(level, kind="stable")
         bounds = np.searchsorted(level[order], np.arange(level.max() + 2))
         lev_h, lev_dims, lev_bits, lev_boff, lev_ent, parts = [], [], [], [0], [0], []
@@ -325,7 +329,7 @@ class _Plan:
             idx = np.ascontiguousarray(order[bounds[L]:bounds[L + 1]])
             if idx.size == 0:
                 continue
-            h = h0 * 4.0**L
+            h = h0 * float(_LEVEL_RATIO)**L
             keys = np.empty(idx.size, dtype=np.int64)
             dims = _centre_keys(loB, hiB, idx, origin, h, keys)
             n_dense = int(dims[0]) * int(dims[1]) * int(dims[2])

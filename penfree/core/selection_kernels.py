@@ -53,17 +53,19 @@ def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, r,
             e1 = (2.0 * a1 - np.float64(x_prev[i, 1])) - v1
             e2 = (2.0 * a2 - np.float64(x_prev[i, 2])) - v2
             dist = np.sqrt((e0 * e0 + e1 * e1) + e2 * e2)
-            # np.minimum / np.maximum semantics, NaN propagating.
+            # np.minimum / np.maximum semantics, NaN propagating; written without
+            # branches (bitwise & on booleans, selects) so that the loop vectorises.
             t = s * d_start[i]
             t = r_q if r_q < t else t
             t = t - thickness
             b = gamma * (0.0 if t < 0.0 else t)
             moving = dist > 0.0
-            is_blocked = moving and not b > 0.0
-            rv = dist / b if moving and not is_blocked else 0.0
+            is_blocked = moving & ~(b > 0.0)
+            rv = dist / b
+            rv = rv if moving & ~is_blocked else 0.0
             r[i] = -np.inf if is_blocked else rv
-            blocked += is_blocked
-            hits += (not is_blocked) and rv <= 1.0
+            blocked += np.int64(is_blocked)
+            hits += np.int64(~is_blocked & (rv <= 1.0))
         part[k, 0] = hits
         part[k, 1] = blocked
     res = np.zeros(2, dtype=np.int64)

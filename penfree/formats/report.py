@@ -42,7 +42,13 @@ report.json key reference (schema ``penfree_report`` = 1; NaN and inf are writte
     ``time_fit_s``, as lists;
   - ``r_hist``: ``edges`` and pooled counts ``<t>_<s>`` over all steps;
   - ``ladder``: null or `penfree.core.ladder.model_ladder` output without the per-step
-    arrays: ``models``, ``n_steps``, ``n_steps_next``, ``rows``.
+    arrays: ``models`` (``baseline``, the ladder, ``auto``, ``x_pred``: the unsafe
+    ideal), ``n_steps``, ``n_steps_next``, ``rows`` (per model: ``fit_ms_mean``,
+    ``fit_ms_median``, ``residual_next_rms``, ``residual_pred_rms``, ``k_1pct_next``,
+    ``k_1pct_next_sum``, ``k_any_next``, ``hit_rate_next``, ``replay_k_1pct_next``,
+    ``replay_k_any_next`` (null without ``--replay``), ``certificate_margin_mean``,
+    ``certificate_margin_min``, ``models_used``), ``auto_best_rate`` (fraction of
+    steps on which ``auto``'s actual K_1pct was the best of baseline and fixed models).
 """
 
 from __future__ import annotations
@@ -237,7 +243,7 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
         projection = opts.get("projection", "auto") if isinstance(opts, dict) else "auto"
         lad = model_ladder(seq.positions, steps["frame"], edges=seq.edges, faces=seq.faces,
                            thickness=seq.thickness, weights=seq.weights, margins=steps.get("margin_required"),
-                           projection=projection, progress=progress)
+                           projection=projection, replay=replay, progress=progress)
     return build_file_report(path, result, stats, ladder=lad, cd_share=cd_share, frame_ms=frame_ms,
                              stats_source=source)
 
