@@ -163,6 +163,11 @@ def deform_sequence(
         _, E, F = _scene(pos[0], seq.edges, seq.faces)
         table_rows = [None] * S
 
+    # Untimed warm-up on a few vertices: JIT compilation (first run, or a stale cache)
+    # must not count as fit time.
+    fit_step(pos[S_idx[0] - 1][:4], pos[S_idx[0]][:4], model="affine" if model in ("auto", "per-component")
+             else model, projection=projection)
+
     for k, s in enumerate(S_idx):
         x_prev, x = pos[s - 1], pos[s]
         if select:
