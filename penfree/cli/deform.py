@@ -19,7 +19,7 @@ from .options import (
 @click.argument("input_path", metavar="IN", type=click.Path(dir_okay=True))
 @click.option("-o", "--output", "output_path", required=True, type=click.Path(dir_okay=False),
               help="Result file (HDF5) to write.")
-@click.option("--model", type=click.Choice(MODELS + ("auto", "per-component")), default="affine",
+@click.option("--model", type=click.Choice(MODELS + ("auto", "per-component")), default="auto",
               show_default=True,
               help="Map family fitted toward the constant-velocity prediction; auto: the certified "
                    "candidate with the fewest predicted CD passes; per-component: one map per object.")

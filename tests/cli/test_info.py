@@ -112,7 +112,7 @@ BAD = {
 }
 
 
-@pytest.mark.parametrize("command", ["info", "convert"])
+@pytest.mark.parametrize("command", ["info", "convert", "deform", "verify"])
 @pytest.mark.parametrize("case", list(BAD))
 def test_bad_input_exit_2(tmp_path, case, command):
     build, expect = BAD[case]
@@ -120,7 +120,8 @@ def test_bad_input_exit_2(tmp_path, case, command):
     build(bad)
     before = (open(bad, "rb").read(), os.stat(bad).st_mtime_ns)
     out = tmp_path / "out.h5"
-    r = _run("info", bad) if command == "info" else _run("convert", bad, out)
+    r = {"info": lambda: _run("info", bad), "convert": lambda: _run("convert", bad, out),
+         "deform": lambda: _run("deform", bad, "-o", out), "verify": lambda: _run("verify", bad)}[command]()
     assert r.exit_code == 2, r.output
     err = r.stderr.strip()
     assert err.startswith("penfree: error: ") and "\n" not in err
