@@ -9,7 +9,11 @@ memory floor (one ``np.add(x_prev, x, out=buf)`` pass). Medians of repeats,
 one process, float32 and float64. Then first-call JIT time against cached, in
 fresh subprocesses sharing one new Numba cache directory.
 
-    .venv/bin/python benchmarks/bench_fit.py [--repeats 30] [--vertices 65536]
+    .venv/bin/python benchmarks/bench_fit.py [--repeats 30] [--vertices 65536] [--threads T]
+
+On a machine shared with other CPU-bound work, ``--threads 1`` gives the steadier
+figures: a parallel region waits for its slowest thread, and a descheduled thread
+costs a whole scheduler time slice.
 """
 
 from __future__ import annotations
@@ -117,8 +121,12 @@ def main(argv=None):
     ap.add_argument("--vertices", type=int, default=65536)
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--no-jit", action="store_true", help="skip the subprocess JIT timing")
+    ap.add_argument("--threads", type=int, default=None, help="Numba threads (default: all)")
     args = ap.parse_args(argv)
     import numba
+
+    if args.threads:
+        numba.set_num_threads(args.threads)
 
     print(f"penfree {penfree.__version__}, numpy {np.__version__}, numba {numba.__version__}, "
           f"threads {numba.get_num_threads()}, N = {args.vertices}, median of {args.repeats}")

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -31,7 +31,7 @@ from ..errors import InputError
 from . import fit as _fit
 from .certificate import certified_margin, certify, fast_margin_bound
 from .projection import project
-from .selection_kernels import order_statistic, predict_kernel
+from .selection_kernels import predict_kernel
 from .step import StepResult
 
 _I3 = np.eye(3)
@@ -132,8 +132,9 @@ def predict_map_passes(x_prev, x, D, u, c, d_start, sigma, r_q, thickness=0.0, g
 
     Parameters
     ----------
-    x_prev, x : (N, 3) float32 or float64, C-contiguous
-        As validated by `fit.as_positions`; the target is ``x_pred = 2 x - x_prev``.
+    x_prev, x : (N, 3) float32 or float64
+        Finite (not checked here: `select_step` has its moments catch NaN/Inf); the
+        target is ``x_pred = 2 x - x_prev``.
     D : (3, 3) float64
     u, c : (3,) float64
     d_start : (N,) float64
@@ -142,7 +143,8 @@ def predict_map_passes(x_prev, x, D, u, c, d_start, sigma, r_q, thickness=0.0, g
         Lower bound of sigma_min(I + D).
     r_q, thickness, gamma : float
     r_buf : (N,) float64 or None
-        Scratch for the per-vertex ratios, reused across candidates.
+        Scratch for the per-vertex ratios, reused across candidates; on return it
+        holds them partitioned about the 99th percentile (blocked vertices as -inf).
 
     Returns
     -------
@@ -154,31 +156,51 @@ def predict_map_passes(x_prev, x, D, u, c, d_start, sigma, r_q, thickness=0.0, g
     One fused pass (`selection_kernels.predict_kernel`) forms x_def in float64,
     rounds it to x's dtype (the stored x_def), and divides its distance to x_pred by
     ``predicted_bounds(d_start, sigma, r_q, thickness, gamma)``; the 99th percentile
-    ("higher") is then found exactly by `selection_kernels.order_statistic`. Compared
+    ("higher") is then one `numpy.partition` of the ratios. Compared
     with ``predict_passes(apply_map(x, D, u, c)[0], x_pred, predicted_bounds(...))``
     the only difference is the rounding of x_def: `apply_map` may fuse and reorder
     its multiply-adds, so x_def can differ in its last bit (tests/core/test_selection.py).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> x = np.zeros((4, 3)); x[:, 0] = np.arange(4.0)
+    >>> p = predict_map_passes(x - 0.1, x, np.zeros((3, 3)), np.zeros(3), np.zeros(3), np.ones(4), 1.0, 1.0)
+    >>> p["k_1pct"], p["n_blocked"]
+    (1, 0)
     """
+    x = _fit.as_positions(x, "x", check_finite=False)
+    x_prev = _fit.as_positions(x_prev, "x_prev", x.shape[0], check_finite=False)
     n = x.shape[0]
     d_start = np.ascontiguousarray(d_start, dtype=np.float64)
     if d_start.shape != (n,):
         raise InputError(f"d_start must be ({n},) to match x; got shape {d_start.shape}")
-    r = np.empty(n) if r_buf is None else r_buf
-    s = float(sigma) * (1.0 - K.PREDICT_SLACK_REL)  # the scalar product predicted_bounds forms first
+    if r_buf is None:
+        r = np.empty(n)
+    elif r_buf.shape != (n,) or r_buf.dtype != np.float64 or not r_buf.flags.c_contiguous:
+        raise InputError(f"r_buf must be C-contiguous ({n},) float64; got {r_buf.shape} {r_buf.dtype}")
+    else:
+        r = r_buf
     D = np.ascontiguousarray(D, dtype=np.float64)
     u = np.ascontiguousarray(u, dtype=np.float64)
     c = np.ascontiguousarray(c, dtype=np.float64)
-    hits, n_blocked = predict_kernel(x_prev, x, D, u, c, d_start, s, float(r_q), float(thickness),
-                                     float(gamma), r)
+    if D.shape != (3, 3) or u.shape != (3,) or c.shape != (3,):
+        raise InputError(f"D, u, c must be (3, 3), (3,), (3,); got {D.shape}, {u.shape}, {c.shape}")
+    return _predict(x_prev, x, D, u, c, d_start, float(sigma), float(r_q), float(thickness), float(gamma), r)
+
+
+def _predict(x_prev, x, D, u, c, d_start, sigma, r_q, thickness, gamma, r):
+    """`predict_map_passes` on validated arrays (the per-candidate call of `select_step`)."""
+    n = x.shape[0]
+    s = sigma * (1.0 - K.PREDICT_SLACK_REL)  # the scalar product predicted_bounds forms first
+    hits, n_blocked = predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r)
 
     def quantile():
         # Blocked vertices hold -inf, below every kept ratio: shift the index past them.
         n_keep = n - n_blocked
         rank = n_blocked + -((-K.K_PERCENTILE * (n_keep - 1)) // 100)
-        q99, r_max, ok = order_statistic(r, rank, np.empty(min(n, n // 16 + 4096)))
-        if not ok:
-            q99 = np.partition(r, rank)[rank]
-        return float(q99), float(r_max)
+        r.partition(rank)  # in place: r is scratch
+        return float(r[rank]), float(r[rank:].max())
 
     return _summary(hits, n_blocked, n, quantile)
 
@@ -218,12 +240,12 @@ def candidate_maps(m, margin=0.0, projection="auto") -> list:
     zero = np.zeros((3, 3))
     out = [Candidate("none", _I3.copy(), zero, np.zeros(3), 0, "none", 1.0, 1.0),
            Candidate("translation", _I3.copy(), zero, m.u.copy(), 0, "none", 1.0, 1.0)]
-    D_aff = None
+    D_aff = aff = None
     for name in K.MODELS[1:]:
         _, D, u, rank = _fit.fit_model(m, name)
-        if name == "affine":
-            D_aff, rank_aff = D, rank
         c = _certified(name, D, u, rank, m, margin, projection)
+        if name == "affine":
+            D_aff, rank_aff, aff = D, rank, c
         if c is not None:
             out.append(c)
     if D_aff is None or not np.any(D_aff):
@@ -234,6 +256,13 @@ def candidate_maps(m, margin=0.0, projection="auto") -> list:
         S[-1] *= -1.0
     for delta in K.SELECT_CLAMP_LEVELS:
         Sc = np.clip(S, 1.0 - delta, 1.0 + delta)
+        if np.array_equal(Sc, S):
+            # Nothing to clamp: the candidate is the affine map itself (U S V^T would
+            # only re-round it), certified exactly as the affine candidate was.
+            if aff is not None:
+                out.append(replace(aff, name=f"affine-clamp{delta:g}", A=aff.A.copy(), D=aff.D.copy(),
+                                   u=aff.u.copy(), predicted={}))
+            continue
         c = _certified(f"affine-clamp{delta:g}", (U * Sc) @ Vt - _I3, m.u.copy(), rank_aff, m, margin, projection)
         if c is not None:
             out.append(c)
@@ -305,6 +334,7 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
     d_start = np.ascontiguousarray(d_start, dtype=np.float64)
     if d_start.shape != (x.shape[0],):
         raise InputError(f"d_start must be ({x.shape[0]},) to match x; got shape {d_start.shape}")
+    r_q, thickness, gamma = float(r_q), float(thickness), float(gamma)
     m = _fit.fit_moments(x_prev, x, w, validate=False)
     cands = candidate_maps(m, margin, projection)
     r_buf = np.empty(x.shape[0])
@@ -314,8 +344,8 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
         # inside the clamp): the same A, u and sigma give the same prediction.
         key = (cand.A.tobytes(), cand.u.tobytes(), cand.sigma_lb)
         if key not in seen:
-            seen[key] = predict_map_passes(x_prev, x, cand.D, cand.u, m.c, d_start, cand.sigma_lb, r_q,
-                                           thickness, gamma, r_buf=r_buf)
+            seen[key] = _predict(x_prev, x, cand.D, cand.u, m.c, d_start, float(cand.sigma_lb), r_q, thickness,
+                                 gamma, r_buf)
         cand.predicted = dict(seen[key])
     k = choose(cands)
     best = cands[k]

@@ -3,11 +3,12 @@
 `predict_kernel` evaluates one candidate map in a single pass over the vertices:
 the deformed position, its distance to the prediction and the predicted bound are
 formed on the fly (``x_def`` is never written), leaving only ``r_v`` in a reusable
-buffer. `order_statistic` then finds one order statistic of that buffer exactly with
-a deterministic sampled pivot, touching the buffer once more instead of sorting it.
+buffer, from which the caller takes the percentile.
 
 No fastmath anywhere: the ratios feed the choice of a certified map and are compared
-against `predict_passes`, so the arithmetic is IEEE as written.
+against `predict_passes`, so the arithmetic is IEEE as written. ``error_model="numpy"``
+is not a fast-math flag: it only drops Python's ZeroDivisionError check (division by
+zero gives inf/NaN as in IEEE and numpy), which would otherwise keep the loop scalar.
 """
 
 from __future__ import annotations
@@ -27,7 +28,9 @@ def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, r,
     #   b     = gamma * max(0, min(r_q, s * d_start) - thickness), s = sigma (1 - slack).
     # A blocked vertex (moving, b not > 0) gets r = -inf, so that the non-blocked
     # ratios are exactly the top N - n_blocked entries of r in sorted order.
-    n = x.shape[0]
+    # x, x_prev are flat (3N,) views and the index is unsigned: with a constant
+    # stride 3 and no negative-index wraparound LLVM vectorises the loop (~4x).
+    n = d_start.shape[0]
     d00, d01, d02 = D[0, 0], D[0, 1], D[0, 2]
     d10, d11, d12 = D[1, 0], D[1, 1], D[1, 2]
     d20, d21, d22 = D[2, 0], D[2, 1], D[2, 2]
@@ -39,8 +42,12 @@ def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, r,
         hi = (k + 1) * n // n_chunks
         hits = 0
         blocked = 0
-        for i in range(lo, hi):
-            a0, a1, a2 = np.float64(x[i, 0]), np.float64(x[i, 1]), np.float64(x[i, 2])
+        for j in range(hi - lo):
+            i = np.uint64(lo + j)
+            i3 = np.uint64(3) * i
+            a0 = np.float64(x[i3])
+            a1 = np.float64(x[i3 + np.uint64(1)])
+            a2 = np.float64(x[i3 + np.uint64(2)])
             p0, p1, p2 = a0 - c0, a1 - c1, a2 - c2
             v0 = a0 + (d00 * p0 + d01 * p1 + d02 * p2 + u0)
             v1 = a1 + (d10 * p0 + d11 * p1 + d12 * p2 + u1)
@@ -49,19 +56,18 @@ def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, r,
                 v0 = np.float64(np.float32(v0))
                 v1 = np.float64(np.float32(v1))
                 v2 = np.float64(np.float32(v2))
-            e0 = (2.0 * a0 - np.float64(x_prev[i, 0])) - v0
-            e1 = (2.0 * a1 - np.float64(x_prev[i, 1])) - v1
-            e2 = (2.0 * a2 - np.float64(x_prev[i, 2])) - v2
+            e0 = (2.0 * a0 - np.float64(x_prev[i3])) - v0
+            e1 = (2.0 * a1 - np.float64(x_prev[i3 + np.uint64(1)])) - v1
+            e2 = (2.0 * a2 - np.float64(x_prev[i3 + np.uint64(2)])) - v2
             dist = np.sqrt((e0 * e0 + e1 * e1) + e2 * e2)
-            # np.minimum / np.maximum semantics, NaN propagating; written without
-            # branches (bitwise & on booleans, selects) so that the loop vectorises.
+            # np.minimum / np.maximum semantics (NaN propagates), without branches.
             t = s * d_start[i]
             t = r_q if r_q < t else t
             t = t - thickness
             b = gamma * (0.0 if t < 0.0 else t)
             moving = dist > 0.0
             is_blocked = moving & ~(b > 0.0)
-            rv = dist / b
+            rv = dist / b  # IEEE division (error_model="numpy"); masked where b is not > 0
             rv = rv if moving & ~is_blocked else 0.0
             r[i] = -np.inf if is_blocked else rv
             blocked += np.int64(is_blocked)
@@ -75,8 +81,8 @@ def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, r,
     return res
 
 
-_predict_serial = njit(cache=True)(_named(_predict_py, "_predict_serial"))
-_predict_parallel = njit(cache=True, parallel=True)(_named(_predict_py, "_predict_parallel"))
+_predict_serial = njit(cache=True, error_model="numpy")(_named(_predict_py, "_predict_serial"))
+_predict_parallel = njit(cache=True, parallel=True, error_model="numpy")(_named(_predict_py, "_predict_parallel"))
 
 
 def predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r):
@@ -89,46 +95,6 @@ def predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r):
     big = x.shape[0] >= K.PARALLEL_MIN_VERTICES
     out32 = x.dtype == np.float32
     res = (_predict_parallel if big else _predict_serial)(
-        x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, r, K.REDUCTION_CHUNKS)
+        x_prev.reshape(-1), x.reshape(-1), D, u, c, d_start, s, r_q, thickness, gamma, out32, r,
+        K.REDUCTION_CHUNKS)
     return int(res[0]), int(res[1])
-
-
-#: Sample size of the pivot estimate in `order_statistic` (sorted, so keep it small).
-_SAMPLE = 1024
-
-
-@njit(cache=True)
-def order_statistic(r, rank, scratch):
-    """``(sorted(r)[rank], max(r), ok)`` without sorting `r` (serial, deterministic).
-
-    A fixed-stride sample of `r` gives a pivot a little below the wanted value; one
-    pass copies the entries >= pivot into `scratch`, and the answer is their order
-    statistic. ``ok`` is False when the pivot missed (too few or too many entries
-    above it); the caller then falls back to a full partition. `rank` must be in
-    ``[0, len(r))``.
-    """
-    n = r.shape[0]
-    top = n - rank  # the answer is the top-th largest entry
-    step = max(1, n // _SAMPLE)
-    sample = np.sort(r[::step])
-    m = sample.shape[0]
-    # Expected sample entries at or above the answer, doubled, plus a margin of
-    # several standard deviations of a binomial count.
-    want = 2.0 * m * top / n + 4.0 * np.sqrt(m * top / n) + 8.0
-    j = max(0, m - int(want))
-    pivot = sample[j]
-    cap = scratch.shape[0]
-    cnt = 0
-    r_max = -np.inf
-    for i in range(n):
-        v = r[i]
-        if v > r_max:
-            r_max = v
-        if v >= pivot:
-            if cnt < cap:
-                scratch[cnt] = v
-            cnt += 1
-    if cnt < top or cnt > cap:
-        return 0.0, r_max, False
-    sel = np.sort(scratch[:cnt])
-    return sel[cnt - top], r_max, True

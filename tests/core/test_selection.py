@@ -1,19 +1,23 @@
 """Collision-aware model choice: the predictor is never optimistic, the choice rule is
 the documented one, every chosen map is certified."""
 
+import numba
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from penfree import constants as K
 from penfree.core import fit as _fit
 from penfree.core.certificate import certify
 from penfree.core.projection import project_sym
 from penfree.core.selection import (
-    Candidate, candidate_maps, choose, predict_passes, predicted_bounds, select_step,
+    Candidate, candidate_maps, choose, predict_map_passes, predict_passes, predicted_bounds, select_step,
     sigma_min_lower_bound,
 )
+from penfree.core.selection_kernels import predict_kernel
 from penfree.core.stats import ratio_stats
 from penfree.core.trust_region import _scene, per_vertex_separation, trust_region_bounds
+from penfree.errors import InputError
 
 
 def rod_scene(rng, n_rods=4, n_per=12):
@@ -184,3 +188,122 @@ def test_every_candidate_and_choice_is_certified(margin):
     r, _ = select_step(x_prev, V, d, r_q=r_q, margin=margin)
     assert certify(r.A, margin)
     np.testing.assert_allclose(r.x_def, V @ r.A.T + r.b, rtol=0, atol=1e-12)
+
+
+# --- the fused predictor against apply_map + predict_passes -------------------
+
+
+def _scene_step(kind, dtype, offset, seed):
+    """A small step with a non-affine prediction, some still vertices and some zero gaps."""
+    rng = np.random.default_rng(seed)
+    V, E, F = rod_scene(rng, n_rods=6, n_per=40) if kind == "rods" else cloth_scene(rng, n=24)
+    V = V + offset
+    c = V.mean(axis=0)
+    th = 0.05
+    R = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]])
+    x_pred = c + (V - c) @ (R @ np.diag([1.02, 0.97, 1.0])).T + 0.004 + 0.003 * rng.standard_normal(V.shape)
+    x_pred[:5] = V[:5]  # vertices that do not move: r = 0 whatever their bound
+    x = V.astype(dtype)
+    x_prev = (2 * V - x_pred).astype(dtype)
+    r_q = 0.01 + float(np.linalg.norm(x_pred - V, axis=1).max())
+    _, E_, F_ = _scene(V, E, F)
+    d = per_vertex_separation(np.ascontiguousarray(V), E_, F_, r_q)
+    d[5:12] = 0.0  # blocked: must move but have no room
+    return x_prev, x, d, r_q
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
+@pytest.mark.parametrize("kind, offset", [("rods", 0.0), ("cloth", 0.0), ("cloth", 1e3)],
+                         ids=["rods", "cloth", "far-from-origin"])
+def test_fused_prediction_matches_apply_then_predict(kind, offset, dtype):
+    x_prev, x, d, r_q = _scene_step(kind, dtype, offset, seed=11)
+    thickness = 0.01
+    m = _fit.fit_moments(x_prev, x)
+    x_pred = 2.0 * x.astype(np.float64) - x_prev.astype(np.float64)
+    eps = np.finfo(dtype).eps
+    r_buf = np.empty(len(x))
+    cands = candidate_maps(m)
+    assert len(cands) >= 8
+    for cand in cands:
+        x_def, _ = _fit.apply_map(x, cand.D, cand.u, m.c)
+        b = predicted_bounds(d, cand.sigma_lb, r_q, thickness)
+        ref = predict_passes(x_def, x_pred, b)
+        got = predict_map_passes(x_prev, x, cand.D, cand.u, m.c, d, cand.sigma_lb, r_q, thickness)
+        s = cand.sigma_lb * (1.0 - K.PREDICT_SLACK_REL)
+        counts = predict_kernel(x_prev, x, cand.D, cand.u, m.c, d, s, r_q, thickness, K.DEFAULT_GAMMA, r_buf)
+        assert counts == (round(ref["hit_rate"] * len(x)), ref["n_blocked"])
+        assert list(got) == list(ref)
+        for key in ("hit_rate", "n_blocked", "k_1pct", "k_any"):
+            assert got[key] == ref[key], (cand.name, key)
+        assert ref["n_blocked"] == 7
+        # Per vertex: x_def may differ from apply_map's in its last bit (apply_map fuses
+        # multiply-adds; a float32 store can then round the other way), so r may differ
+        # by one unit of x_def's dtype at the largest coordinate, divided by the bound.
+        dist = np.linalg.norm(x_pred - x_def.astype(np.float64), axis=1)
+        blocked = (dist > 0) & ~(b > 0)
+        r_ref = np.where(blocked, -np.inf, np.where(dist > 0, dist / np.where(b > 0, b, 1.0), 0.0))
+        tol = np.where(b > 0, 2.0 * np.sqrt(3.0) * eps * np.abs(x_def).max() / np.where(b > 0, b, 1.0), 0.0)
+        assert np.array_equal(np.isinf(r_buf), blocked)
+        ok = ~blocked
+        assert np.all(np.abs(r_buf[ok] - r_ref[ok]) <= tol[ok]), cand.name
+        tol_q = tol[ok].max()
+        np.testing.assert_allclose(got["r_q99"], ref["r_q99"], rtol=0, atol=tol_q)
+        np.testing.assert_allclose(got["r_max"], ref["r_max"], rtol=0, atol=tol_q)
+
+
+def test_fused_prediction_exact_for_doing_nothing():
+    # D = 0, u = 0 reproduces x bit for bit, so the fused predictor equals the numpy one.
+    x_prev, x, d, r_q = _scene_step("rods", np.float64, 0.0, seed=12)
+    x_pred = 2.0 * x - x_prev
+    b = predicted_bounds(d, 1.0, r_q, 0.0)
+    got = predict_map_passes(x_prev, x, np.zeros((3, 3)), np.zeros(3), np.zeros(3), d, 1.0, r_q)
+    assert got == predict_passes(x, x_pred, b)
+
+
+def test_all_blocked_prediction():
+    x_prev, x, d, r_q = _scene_step("rods", np.float64, 0.0, seed=13)
+    x_prev = x - 0.01  # everything moves
+    got = predict_map_passes(x_prev, x, np.zeros((3, 3)), np.zeros(3), np.zeros(3), np.zeros(len(x)), 1.0, r_q)
+    assert got == predict_passes(x, 2.0 * x - x_prev, np.zeros(len(x)))
+    assert got["n_blocked"] == len(x) and got["k_1pct"] == 1 and got["hit_rate"] == 0.0
+
+
+def test_select_step_deterministic_across_thread_counts(monkeypatch):
+    from penfree import constants
+
+    monkeypatch.setattr(constants, "PARALLEL_MIN_VERTICES", 0)  # force the parallel kernels
+    x_prev, x, d, r_q = _scene_step("cloth", np.float32, 0.0, seed=14)
+    old = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        r1, t1 = select_step(x_prev, x, d, r_q=r_q, thickness=0.01)
+        numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+        r2, t2 = select_step(x_prev, x, d, r_q=r_q, thickness=0.01)
+    finally:
+        numba.set_num_threads(old)
+    assert t1 == t2
+    assert np.array_equal(r1.x_def, r2.x_def) and np.array_equal(r1.A, r2.A)
+
+
+def test_select_step_checks_d_start():
+    x_prev, x, d, r_q = _scene_step("rods", np.float64, 0.0, seed=15)
+    with pytest.raises(InputError, match="d_start must be"):
+        select_step(x_prev, x, d[:-1], r_q=r_q)
+
+
+@pytest.mark.parametrize("change, match", [
+    (dict(x_prev=np.zeros((5, 3))), "x_prev must have the same N"),
+    (dict(d_start=np.ones(5)), "d_start must be"),
+    (dict(D=np.zeros((2, 3))), "D, u, c must be"),
+    (dict(c=np.zeros(2)), "D, u, c must be"),
+    (dict(r_buf=np.empty(5)), "r_buf must be"),
+    (dict(r_buf=np.empty(10, dtype=np.float32)), "r_buf must be"),
+], ids=["x_prev-N", "d_start-N", "D-shape", "c-shape", "r_buf-N", "r_buf-dtype"])
+def test_predict_map_passes_checks_its_arrays(change, match):
+    # The kernel indexes without bounds checks: every size it relies on is validated.
+    x = np.random.default_rng(16).random((10, 3))
+    args = dict(x_prev=x - 0.01, x=x, D=np.zeros((3, 3)), u=np.zeros(3), c=np.zeros(3), d_start=np.ones(10),
+                sigma=1.0, r_q=1.0)
+    args.update(change)
+    with pytest.raises(InputError, match=match):
+        predict_map_passes(**args)
