@@ -61,7 +61,8 @@ def _min(a):
 
 def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, weights=None, margins=None,
                  models=LADDER_MODELS, projection="auto", gamma=DEFAULT_GAMMA, bounds_fn=None, fit_fn=None,
-                 ceiling=True, replay=False, replay_cap=DEFAULT_REPLAY_CAP, progress=None) -> dict:
+                 ceiling=True, replay=False, replay_cap=DEFAULT_REPLAY_CAP, components=None,
+                 progress=None) -> dict:
     """Re-fit every step with each model and score speed against error.
 
     Parameters
@@ -89,6 +90,9 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
         `trust_region_bounds` with this topology.
     fit_fn : callable, optional
         Stand-in for `penfree.core.step.fit_step` (same signature and result fields).
+    components : (N,) int, optional
+        Object labels for the optional ``"per-component"`` model (default: connected
+        components of the topology). That model runs the CCD between objects every step.
     ceiling : bool
         Add the ``x_pred`` row (the unsafe ideal: the prediction itself).
     replay, replay_cap
@@ -133,6 +137,10 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
                                        query_radius=r_q)
 
     names = ["baseline", *models, *(["x_pred"] if ceiling else [])]
+    if "per-component" in models:
+        from .components import component_labels, per_component_step
+
+        labels = component_labels(positions.shape[1], edges, faces, components)
     select = "auto" in models and (edges is not None and len(edges) or faces is not None and len(faces))
     if select:
         from .selection import select_step
@@ -143,7 +151,7 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
     used = {m: {} for m in names}
     if S:
         for m in models:  # warm-up: keep JIT compilation out of the timings
-            for _ in range(LADDER_WARMUP_CALLS if not (select and m == "auto") else 0):
+            for _ in range(LADDER_WARMUP_CALLS if m not in ("auto", "per-component") else 0):
                 fit_fn(positions[frames[0] - 1], positions[frames[0]], weights=weights, model=m,
                        projection=projection, margin=0.0)
     for i, s in enumerate(frames):
@@ -156,7 +164,11 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
         margin = float(margins[i])
         for m in models:
             model, mg = (m, margin) if margin < 1.0 else ("translation", 0.0)
-            if select and model == "auto":
+            if model == "per-component":
+                t0 = time.perf_counter()
+                r = per_component_step(x_prev, x, labels, edges=edges, faces=faces, thickness=thickness,
+                                       weights=weights, margin=mg, projection=projection)
+            elif select and model == "auto":
                 # The separations at x are the simulator's last detection: not fit time.
                 d_start = per_vertex_separation(x64, E_sel, F_sel, r_q)
                 t0 = time.perf_counter()
@@ -166,7 +178,8 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
                 t0 = time.perf_counter()
                 r = fit_fn(x_prev, x, weights=weights, model=model, projection=projection, margin=mg)
             dt_ms = (time.perf_counter() - t0) * 1e3
-            used[m][r.model] = used[m].get(r.model, 0) + 1
+            name = f"{len(np.unique(r.group))} groups" if model == "per-component" else r.model
+            used[m][name] = used[m].get(name, 0) + 1
             states[m] = (np.asarray(r.x_def, dtype=np.float64), dt_ms, float(r.certificate_margin))
         if ceiling:
             states["x_pred"] = (x_pred, math.nan, math.nan)
