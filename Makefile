@@ -7,7 +7,7 @@ BIN    := $(VENV)/bin
 SAMPLE ?= samples/cloth.h5
 OUT    ?= demo-out
 
-.PHONY: demo test test-all bench clean help
+.PHONY: demo test test-all bench clean clean-cache help
 
 help:
 	@echo "make demo      deform + verify + report on $(SAMPLE) (output in $(OUT)/)"
@@ -52,5 +52,10 @@ bench: $(VENV)/.stamp-bench
 	$(BIN)/python benchmarks/bench_verify.py
 	$(BIN)/python benchmarks/bench_bounds.py
 
-clean:
+# Numba's on-disk cache is invalidated per source file only: after editing a kernel
+# that other modules' kernels call (e.g. core/distance.py), clear it.
+clean-cache:
+	find penfree -name '*.nbi' -delete -o -name '*.nbc' -delete
+
+clean: clean-cache
 	rm -rf $(VENV) $(OUT) .pytest_cache .hypothesis

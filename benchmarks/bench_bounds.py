@@ -23,6 +23,7 @@ compilation excluded); the bounds are compared per vertex.
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 
@@ -111,7 +112,8 @@ def main(argv=None):
         "yarn bundle": yarn_bundle(args.size, args.size),
         "draped cloth": draped_cloth(args.size),
     }
-    print(f"numba threads: {numba.get_num_threads()}, repeats: {args.repeats} (median)")
+    print(f"numba threads: {numba.get_num_threads()}, repeats: {args.repeats} (median), "
+          f"load average before: {os.getloadavg()[0]:.1f}")
     head = (f"{'scene':<13} {'N':>7} {'prims':>7} {'r_q':>9} {'penfree ms':>11} {'ipctk ms':>9} "
             f"{'ratio':>6} {'ipctk r/2':>10} {'ratio':>6} {'max rel diff':>13} {'b=0 agree':>9}")
     print(head)
@@ -158,7 +160,8 @@ def main(argv=None):
         print(f"{'':<13} bounds: min {b_pf.min():.3e}, median {np.median(b_pf):.3e}, "
               f"{100 * capped:.0f}% at the cap gamma (r_q - thickness), "
               f"{int((b_pf == 0).sum())} zero; ipctk r/2 vs r: max rel diff {rel2:.1e}")
-    print("ratio = ipctk time / penfree time (> 1: penfree faster)")
+    print(f"ratio = ipctk time / penfree time (> 1: penfree faster); numba threading layer: "
+          f"{numba.threading_layer()}, load average after: {os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

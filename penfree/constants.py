@@ -94,6 +94,10 @@ PERCENTILE_METHOD = "higher"
 #: plus a bin for r = 0 below and one for r >= 10^hi (and blocked vertices) above.
 R_HIST_DECADES = (-4, 4)
 R_HIST_BINS_PER_DECADE = 8
+#: trust_region_bounds without a query radius (penfree/core/trust_region.py):
+#: r_q = thickness + this fraction of the bounding-box diagonal of x, a stand-in
+#: for the step's largest displacement that only the caller knows (lead's brief).
+DEFAULT_RADIUS_FRACTION = 0.1
 
 # --- CCD (SPEC sections 6 and 10; penfree/core/ccd.py) -----------------------
 #: Proven bound of the floating-point error of one corner value of the contact

@@ -45,8 +45,9 @@ Guarantees
   primitives are within ``sqrt(3) (thickness + tol + 2 err)`` at the box's
   start time, returned as `witness` by `ccd_details`; extent is the largest
   side of the bounding box of the 8 input points), or
-  when `CCD_MAX_BOXES` boxes have been examined without a decision (rare; a
-  conservative hit).
+  when `CCD_MAX_BOXES` boxes have been examined (or a box can no longer be
+  split in floating point, or a coordinate exceeds 1e150) without a decision
+  (status `BUDGET`; rare; a conservative hit).
 - Exact decision for thickness 0 (``exact=True``, the default): the queries
   the float kernel flags (near-misses closer than its tolerance, and real
   contacts) are decided exactly in rational arithmetic by `ccd_exact`

@@ -139,7 +139,7 @@ def _query(x0, x1, is_vf, thickness, t_max, boxes, P, Fc):
         t_lo, t_hi, u_lo, u_hi, v_lo, v_hi = (
             boxes[n, 0], boxes[n, 1], boxes[n, 2], boxes[n, 3], boxes[n, 4], boxes[n, 5])
         if t_lo >= best:
-            continue
+            continue  # cannot lower the toi bound: any contact in it is at or after `best`
         if is_vf and u_lo + v_lo > 1.0:  # outside u + v <= 1 (rounding is monotone)
             continue
         _corners(x0, x1, is_vf, t_lo, t_hi, u_lo, u_hi, v_lo, v_hi, P, Fc)
@@ -226,8 +226,7 @@ def _query(x0, x1, is_vf, thickness, t_max, boxes, P, Fc):
         hi = boxes[n, 2 * dim + 1]
         mid = 0.5 * (lo + hi)
         if not (lo < mid < hi):
-            best = t_lo  # a float interval that cannot be split: treat as contact
-            witness = t_lo
+            best = min(best, t_lo)  # a float interval that cannot be split: undecided, a hit
             continue
         if n + 2 > cap:
             break
@@ -245,9 +244,9 @@ def _query(x0, x1, is_vf, thickness, t_max, boxes, P, Fc):
     toi = best
     for i in range(n):
         toi = min(toi, boxes[i, 0])
-    if best < np.inf:
+    if witness == witness:  # not NaN: a box within tolerance was found
         return CLOSE, toi, 0.0, witness
-    if n > 0:
+    if best < np.inf or n > 0:
         return BUDGET, toi, 0.0, np.nan
     return SEPARATED, np.inf, sep, np.nan
 

@@ -144,9 +144,9 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
     select = "auto" in models and (edges is not None and len(edges) or faces is not None and len(faces))
     if select:
         from .selection import select_step
-        from .trust_region import _scene, per_vertex_separation
+        from .trust_region import scene_arrays, per_vertex_separation
 
-        _, E_sel, F_sel = _scene(positions[0], edges, faces)
+        _, E_sel, F_sel = scene_arrays(positions[0], edges, faces)
     per = {m: {f: np.full(S, np.nan) for f in LADDER_FIGURES} for m in names}
     used = {m: {} for m in names}
     if S:

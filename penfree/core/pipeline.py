@@ -158,9 +158,9 @@ def deform_sequence(
     select = model == "auto" and seq.kind != "points"
     if select:
         from .selection import select_step
-        from .trust_region import _scene, per_vertex_separation
+        from .trust_region import scene_arrays, per_vertex_separation
 
-        _, E, F = _scene(pos[0], seq.edges, seq.faces)
+        _, E, F = scene_arrays(pos[0], seq.edges, seq.faces)
         table_rows = [None] * S
 
     # Untimed warm-up on a few vertices: JIT compilation (first run, or a stale cache)

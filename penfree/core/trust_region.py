@@ -12,22 +12,26 @@ so no candidate list is ever stored.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
-from ..constants import DEFAULT_GAMMA, REDUCTION_CHUNKS
+from ..constants import DEFAULT_GAMMA, DEFAULT_RADIUS_FRACTION, REDUCTION_CHUNKS
 from ..errors import InputError
 from .broad_phase import _box_arrays, _Plan
 from .topology import as_positions, as_topology, edges_from_faces, referenced_vertices
 
-#: Default query radius when none is given: this fraction of the bounding-box
-#: diagonal of x (plus the thickness). A stand-in for the step's largest
-#: displacement, which only the caller knows (SPEC section 7).
-DEFAULT_RADIUS_FRACTION = 0.1
 #: Cap on the per-chunk partial minima, in float64 entries (32 MiB).
 _PARTIAL_ENTRIES_MAX = 1 << 22
 
 
-def _scene(x, edges, faces):
+def scene_arrays(x, edges, faces):
+    """Validated ``x (N, 3) float64``, ``E (M, 2) int64``, ``F (K, 3) int64``.
+
+    For a triangle scene E holds the edges of the faces (plus any extra
+    segments given); degenerate segments (i, i) are dropped. Other stages
+    (pipeline, ladder) call this once per sequence and then
+    `per_vertex_separation` per step.
+    """
     x = as_positions(x, "x")
     n = x.shape[0]
     E = as_topology(edges, 2, n, "edges")
@@ -78,7 +82,10 @@ def per_vertex_separation(x, E, F, radius):
     """
     n = x.shape[0]
     inflation = 0.5 * radius
-    n_chunks = max(1, min(REDUCTION_CHUNKS, _PARTIAL_ENTRIES_MAX // max(n, 1)))
+    # min is exact, so the chunk count may follow the thread count (a few
+    # chunks per thread for balance) without changing a single bit.
+    n_chunks = max(1, min(REDUCTION_CHUNKS, 4 * numba.get_num_threads(),
+                          _PARTIAL_ENTRIES_MAX // max(n, 1)))
     partial = np.full((n_chunks, n), np.inf)
     if E.shape[0]:
         lo, hi = _box_arrays(x, x, E, inflation)
@@ -136,7 +143,7 @@ def trust_region_bounds(x, *, edges=None, faces=None, thickness=0.0, gamma=DEFAU
     >>> trust_region_bounds(x, edges=[[0, 1], [2, 3]], query_radius=1.0).round(4).tolist()
     [0.2295, 0.2295, 0.2295, 0.2295]
     """
-    x, E, F = _scene(x, edges, faces)
+    x, E, F = scene_arrays(x, edges, faces)
     thickness = _radius(thickness, "thickness")
     gamma = _radius(gamma, "gamma")
     if query_radius is None:
@@ -173,7 +180,7 @@ def min_separation(V, E=None, F=None, *, radius) -> float:
     >>> min_separation(V, E=[[0, 1], [2, 3]], radius=1.0)
     0.3
     """
-    x, E_, F_ = _scene(V, E, F)
+    x, E_, F_ = scene_arrays(V, E, F)
     r = _radius(radius, "radius")
     if x.shape[0] == 0:
         return r

@@ -116,7 +116,8 @@ class _Body:
         self.F = as_topology(faces, 3, n, f"{name} faces") if faces is not None else np.zeros((0, 3), np.int64)
         E = as_topology(edges, 2, n, f"{name} edges") if edges is not None else np.zeros((0, 2), np.int64)
         if len(self.F):
-            E = np.unique(np.concatenate([np.sort(E, axis=1), edges_from_faces(self.F)]), axis=0)
+            EF = edges_from_faces(self.F)
+            E = np.unique(np.concatenate([np.sort(E, axis=1), EF]), axis=0) if len(E) else EF
         self.E = np.ascontiguousarray(E, dtype=np.int64)
         self.V = np.arange(n, dtype=np.int64) if len(self.F) or len(self.E) else np.zeros(0, np.int64)
 

@@ -16,7 +16,7 @@ from penfree.core.selection import (
 )
 from penfree.core.selection_kernels import predict_kernel
 from penfree.core.stats import ratio_stats
-from penfree.core.trust_region import _scene, per_vertex_separation, trust_region_bounds
+from penfree.core.trust_region import scene_arrays, per_vertex_separation, trust_region_bounds
 from penfree.errors import InputError
 
 
@@ -63,7 +63,7 @@ def test_predicted_bound_never_exceeds_recomputed_bound(seed, kind, scale, thick
     c = V.mean(axis=0)
     x_def = V + (V - c) @ D.T + u
     r_q = thickness + 0.2
-    _, E_, F_ = _scene(V, E, F)
+    _, E_, F_ = scene_arrays(V, E, F)
     d_start = per_vertex_separation(np.ascontiguousarray(V), E_, F_, r_q)
     b_hat = predicted_bounds(d_start, sigma_min_lower_bound(np.eye(3) + D), r_q, thickness)
     b_def = trust_region_bounds(x_def, edges=E, faces=F, thickness=thickness, query_radius=r_q)
@@ -114,7 +114,7 @@ def test_choose_rule(table, expected):
 def test_zero_motion_chooses_doing_nothing():
     rng = np.random.default_rng(0)
     V, E, F = rod_scene(rng)
-    _, E_, F_ = _scene(V, E, F)
+    _, E_, F_ = scene_arrays(V, E, F)
     d = per_vertex_separation(V, E_, F_, 0.1)
     r, table = select_step(V, V, d, r_q=0.1)
     assert r.model == "none"
@@ -127,7 +127,7 @@ def test_pure_translation_chooses_translation():
     V, E, F = rod_scene(rng)
     x_prev = V - np.array([0.2, 0.0, 0.0])
     r_q = 0.2
-    _, E_, F_ = _scene(V, E, F)
+    _, E_, F_ = scene_arrays(V, E, F)
     d = per_vertex_separation(V, E_, F_, r_q)
     r, table = select_step(x_prev, V, d, r_q=r_q)
     assert r.model == "translation"
@@ -147,7 +147,7 @@ def test_compression_is_not_chosen_when_it_shrinks_the_bounds():
     x_pred = c + (V - c) @ np.diag([1.0, 0.2, 1.0]).T + 0.01 * rng.standard_normal(V.shape)
     x_prev = 2 * V - x_pred
     r_q = float(np.linalg.norm(x_pred - V, axis=1).max())
-    _, E_, F_ = _scene(V, E, None)
+    _, E_, F_ = scene_arrays(V, E, None)
     d = per_vertex_separation(V, E_, F_, r_q)
     r, table = select_step(x_prev, V, d, r_q=r_q)
     rows = {t["name"]: t for t in table}
@@ -183,7 +183,7 @@ def test_every_candidate_and_choice_is_certified(margin):
         assert certify(cand.A, margin), cand.name
         np.testing.assert_array_equal(cand.D, cand.A - np.eye(3))
     r_q = float(np.linalg.norm(x_pred - V, axis=1).max())
-    _, E_, F_ = _scene(V, E, F)
+    _, E_, F_ = scene_arrays(V, E, F)
     d = per_vertex_separation(V, E_, F_, r_q)
     r, _ = select_step(x_prev, V, d, r_q=r_q, margin=margin)
     assert certify(r.A, margin)
@@ -206,7 +206,7 @@ def _scene_step(kind, dtype, offset, seed):
     x = V.astype(dtype)
     x_prev = (2 * V - x_pred).astype(dtype)
     r_q = 0.01 + float(np.linalg.norm(x_pred - V, axis=1).max())
-    _, E_, F_ = _scene(V, E, F)
+    _, E_, F_ = scene_arrays(V, E, F)
     d = per_vertex_separation(np.ascontiguousarray(V), E_, F_, r_q)
     d[5:12] = 0.0  # blocked: must move but have no room
     return x_prev, x, d, r_q

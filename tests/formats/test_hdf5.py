@@ -16,7 +16,7 @@ def rng():
     return np.random.default_rng(7)
 
 
-def _scene(rng, dtype, kind="triangles"):
+def scene_arrays(rng, dtype, kind="triangles"):
     topo = dict(faces=np.array([[0, 1, 2], [1, 2, 3], [2, 3, 4]])) if kind == "triangles" else \
         dict(edges=np.array([[0, 1], [1, 2], [2, 3], [3, 4]]))
     return Sequence(
@@ -33,7 +33,7 @@ def _scene(rng, dtype, kind="triangles"):
 @pytest.mark.parametrize("kind", ["triangles", "segments"])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64], ids=["float32", "float64"])
 def test_round_trip(tmp_path, rng, dtype, kind):
-    seq = _scene(rng, dtype, kind).validate()
+    seq = scene_arrays(rng, dtype, kind).validate()
     path = str(tmp_path / "frames.h5")
     write_sequence(path, seq)
     back = read_sequence(path)
@@ -70,7 +70,7 @@ def test_reads_a_minimal_foreign_file(tmp_path, rng):
 
 
 def test_existing_output_needs_overwrite(tmp_path, rng):
-    seq = _scene(rng, np.float64).validate()
+    seq = scene_arrays(rng, np.float64).validate()
     path = tmp_path / "o.h5"
     write_sequence(path, seq)
     before = path.read_bytes()
@@ -91,7 +91,7 @@ def test_writer_failure_leaves_no_file(tmp_path, rng, monkeypatch):
 
     monkeypatch.setattr(hdf5, "write_to_h5", boom)
     with pytest.raises(RuntimeError):
-        write_sequence(tmp_path / "o.h5", _scene(rng, np.float32))
+        write_sequence(tmp_path / "o.h5", scene_arrays(rng, np.float32))
     assert os.listdir(tmp_path) == []
 
 
@@ -136,7 +136,7 @@ def test_bad_inputs(tmp_path, build, exc, expect):
 
 def test_truncated_file(tmp_path, rng):
     p = tmp_path / "cut.h5"
-    write_sequence(p, _scene(rng, np.float64))
+    write_sequence(p, scene_arrays(rng, np.float64))
     data = p.read_bytes()
     p.write_bytes(data[: len(data) // 2])
     with pytest.raises(FormatError, match=f"{p} is a truncated or damaged HDF5 file"):

@@ -45,7 +45,7 @@ def bounds(monkeypatch):
                             types.SimpleNamespace(trust_region_bounds=_far_bounds))
 
 
-def _scene(T=6, n=6, seed=3):
+def scene_arrays(T=6, n=6, seed=3):
     # Two 2-edge rods 10 apart (far beyond r_q), spinning slowly and drifting: the
     # translation map helps, and every non-adjacent pair is out of query range (so the
     # real bounds equal the stand-in's).
@@ -79,7 +79,7 @@ def _translation_steps(seq):
 def write_tiny_result(path, with_stats=False, uncertified_frame=None):
     from penfree.formats.result import write_result
 
-    seq = _scene()
+    seq = scene_arrays()
     steps = _translation_steps(seq)
     if uncertified_frame is not None:
         steps["certificate_margin"][steps["frame"] == uncertified_frame] = np.nan
@@ -134,7 +134,7 @@ def test_open_result_rejects_a_raw_sequence(tmp_path):
     from penfree.formats import write_sequence
 
     p = tmp_path / "raw.h5"
-    write_sequence(p, _scene())
+    write_sequence(p, scene_arrays())
     with pytest.raises(InputError, match="not a penfree deform output"):
         open_result(p)
     with pytest.raises(InputError, match="no such file"):
