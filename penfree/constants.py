@@ -118,6 +118,10 @@ CCD_TOL_REL = 1e-10
 CCD_TOI_TOL = 1e-6
 #: Boxes examined per query before giving up and reporting a (conservative) hit.
 CCD_MAX_BOXES = 1 << 15
+#: Flagged queries per batch decided by the exact rational path (~1-4 ms each);
+#: beyond it they stay flagged (conservative), so a scene in contact everywhere
+#: cannot stall `verify` for minutes.
+CCD_MAX_EXACT = 5000
 
 # --- collision-aware model choice (penfree/core/selection.py) ----------------
 #: Rounding allowance of sigma_min from LAPACK's SVD: backward error

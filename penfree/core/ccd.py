@@ -55,7 +55,9 @@ Guarantees
   tests at those roots). The float64 inputs are exact rationals, so the
   answer is exact: on the Wang et al. 2021 handcrafted benchmark and the IPC
   Toolkit cases it has no false negatives and no false positives. It costs
-  a few milliseconds per flagged query (Python), and only flagged queries pay.
+  a few milliseconds per flagged query (Python), and only flagged queries pay;
+  at most `CCD_MAX_EXACT` per call are decided exactly, the others stay
+  flagged (conservative).
   With thickness > 0 the float verdict stands (false positives bounded as above).
 
 Notes
@@ -68,7 +70,7 @@ is rigorous for the Euclidean distance because it bounds a projection of F.
 
 import numpy as np
 
-from ..constants import REDUCTION_CHUNKS
+from ..constants import CCD_MAX_EXACT, REDUCTION_CHUNKS
 from ..errors import InputError
 from .ccd_exact import exact_edge_edge, exact_vertex_face
 from .ccd_kernels import BUDGET, CLOSE, SEPARATED, ccd_batch, ccd_batch_indexed
@@ -138,7 +140,7 @@ def ccd_details(x_t0, x_t1, kind, thickness=0.0, *, t_max=1.0, exact=True):
     status, toi, sep, witness = ccd_batch(a, b, kind == "vf", thickness, t_max, n_chunks)
     if exact and thickness == 0.0:
         decide = exact_vertex_face if kind == "vf" else exact_edge_edge
-        for i in np.flatnonzero(status != SEPARATED):
+        for i in np.flatnonzero(status != SEPARATED)[:CCD_MAX_EXACT]:
             if not decide(a[i], b[i], t_max):
                 status[i], toi[i], sep[i], witness[i] = SEPARATED, np.inf, 0.0, np.nan
     return status, toi, sep, witness
@@ -171,7 +173,7 @@ def ccd_indexed(V_t0, V_t1, idx, kind, thickness=0.0, *, exact=True):
         V_t0, V_t1, idx, kind == "vf", float(thickness), 1.0, max(1, min(q, REDUCTION_CHUNKS)))
     if exact and thickness == 0.0:
         decide = exact_vertex_face if kind == "vf" else exact_edge_edge
-        for i in np.flatnonzero(status != SEPARATED):
+        for i in np.flatnonzero(status != SEPARATED)[:CCD_MAX_EXACT]:
             if not decide(V_t0[idx[i]], V_t1[idx[i]], 1.0):
                 status[i], toi[i], sep[i], witness[i] = SEPARATED, np.inf, 0.0, np.nan
     return status, toi, sep, witness

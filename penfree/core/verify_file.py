@@ -200,12 +200,16 @@ def verify_sequence(seq, *, thickness=None, frames=None, max_pairs=DEFAULT_MAX_P
     h = _thickness(seq.thickness if thickness is None else thickness)
     sel = _selected(seq.n_frames, frames)
     rep = VerifyReport(seq.origin, "sequence", h, "ccd")
+    clean_frame = None  # end frame of the last step that verified ok
     for s in range(seq.n_frames - 1):
         if s not in sel or s + 1 not in sel:
             continue
         obs, names = _obstacles(seq, s, s + 1)
+        # frame s is the end state of step s - 1: if that verified ok, it is intersection-free
         r = verify_step(seq.positions[s], seq.positions[s + 1], edges=seq.edges, faces=seq.faces, thickness=h,
-                        obstacles=obs, obstacle_names=names, max_pairs=max_pairs)
+                        obstacles=obs, obstacle_names=names, max_pairs=max_pairs,
+                        start_intersections=clean_frame != s)
+        clean_frame = s + 1 if r.ok else None
         rep.steps.append(StepReport(s, f"frame {s + 1}", r))
         if progress is not None:
             progress()
@@ -261,9 +265,16 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         x_def = np.asarray(st["deformed"][k], dtype=np.float64)
         A, b = np.asarray(st["A"][k], np.float64), np.asarray(st["b"][k], np.float64)
         m, _ = step_margin(x, seq, h, None)
-        cert = certify(A, m) if m is not None else bool(np.array_equal(A, np.eye(3)))
+        per_component = not np.isfinite(A).all()
+        if per_component:
+            # Several maps (deform --model per-component): each must be certified, and
+            # only the full CCD can prove the paths between components.
+            maps = _component_maps(res, k)
+            cert = m is not None and all(certify(A_c, m) for A_c in maps)
+        else:
+            cert = certify(A, m) if m is not None else bool(np.array_equal(A, np.eye(3)))
         r = None
-        if mode != "ccd" and not seq.obstacles:
+        if mode != "ccd" and not seq.obstacles and not per_component:
             r = verify_affine_step(x, x_def, A, b, edges=seq.edges, faces=seq.faces, thickness=h, max_pairs=max_pairs)
         if r is None and mode == "certificate":
             r = VerifyResult(ok=False, start_ok=True, min_separation=0.0, method="certificate")
@@ -276,6 +287,16 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         if progress is not None:
             progress()
     return rep
+
+
+def _component_maps(res, k):
+    """Distinct per-component maps of step k (``component_maps/A``), for a step whose
+    ``steps/A`` is NaN; a NaN A without them is unusable input."""
+    comp = res.groups.get("component_maps", {})
+    if "A" not in comp or not np.isfinite(comp["A"][k]).all():
+        raise InputError(f"steps/A of step {k} is not finite and no finite per-component maps were found "
+                         f"in {res.origin}:/component_maps/A")
+    return list(np.unique(np.asarray(comp["A"][k], dtype=np.float64), axis=0))
 
 
 def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEFAULT_MAX_PAIRS, progress=None):

@@ -270,3 +270,17 @@ def test_invariance_rigid_and_relabel(kind, x0, x1, perm, signs, shift, scale, s
             assert hit == ref_hit
         else:
             assert hit or not ref_hit  # the float kernel may add near-misses, never drop contacts
+
+
+def test_exact_decisions_are_capped_conservatively(monkeypatch):
+    import penfree.core.ccd as ccd_module
+
+    # crossing edges passing 2^-50 apart: below the kernel's error bound, exactly separated
+    x_t0 = np.array([[[-1, 0, 1], [1, 0, 1], [0, -1, -1], [0, 1, -1]]] * 3, float)
+    x_t1 = x_t0.copy()
+    x_t1[:, :2, 2] = -1 + 2.0**-50
+    assert (ccd_details(x_t0, x_t1, "ee", exact=False)[0] != SEPARATED).all()
+    assert (ccd_details(x_t0, x_t1, "ee")[0] == SEPARATED).all()
+    monkeypatch.setattr(ccd_module, "CCD_MAX_EXACT", 2)
+    capped = ccd_details(x_t0, x_t1, "ee")[0] != SEPARATED
+    assert capped.tolist() == [False, False, True]  # the third stays flagged: conservative
