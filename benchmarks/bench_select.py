@@ -29,7 +29,7 @@ import numpy as np
 import penfree
 from penfree.core import fit as _fit
 from penfree.core.selection import candidate_maps, predict_passes, predicted_bounds, select_step
-from penfree.core.trust_region import _scene, per_vertex_separation
+from penfree.core.trust_region import scene_arrays, per_vertex_separation
 
 SCENES = ("yarn-bundle", "cloth-ref")
 
@@ -88,7 +88,7 @@ def main(argv=None):
     print("-" * len(hdr))
     for scene in SCENES:
         x_prev64, x64, edges, faces, thickness = reference_step(scene, args.vertices)
-        _, E, F = _scene(x64, edges, faces)
+        _, E, F = scene_arrays(x64, edges, faces)
         r_q = thickness + float(np.linalg.norm(x64 - x_prev64, axis=1).max())
         t_sep = median_time(lambda: per_vertex_separation(x64, E, F, r_q), args.sep_repeats)
         d_start = per_vertex_separation(x64, E, F, r_q)

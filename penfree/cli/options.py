@@ -48,17 +48,10 @@ def set_threads(threads):
 
 
 def echo_json(obj):
-    click.echo(json.dumps(obj, indent=2, default=_json_default, allow_nan=True))
+    """Strict JSON on stdout (NaN and inf as null, as in report.json)."""
+    from ..formats._json import json_safe
 
-
-def _json_default(o):
-    import numpy as np
-
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
+    click.echo(json.dumps(json_safe(obj), indent=2))
 
 
 class Progress:

@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from ..constants import DEFAULT_GAMMA, DEFAULT_REPLAY_CAP
-from .stats import query_radius, ratio_stats, replay_passes, residual_summary
+from .stats import _mean, query_radius, ratio_stats, replay_passes, residual_summary
 
 #: The ladder, cheapest first (SPEC section 4), then the automatic choice.
 LADDER_MODELS = ("translation", "rigid", "similarity", "affine", "auto")
@@ -39,12 +39,6 @@ def _pooled_rms(a):
     a = np.asarray(a, dtype=np.float64)
     a = a[np.isfinite(a)]
     return math.sqrt(float(np.mean(a * a))) if a.size else math.nan
-
-
-def _mean(a):
-    a = np.asarray(a, dtype=np.float64)
-    a = a[np.isfinite(a)]
-    return float(a.mean()) if a.size else math.nan
 
 
 def _median(a):

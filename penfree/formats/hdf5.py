@@ -24,6 +24,7 @@ import numpy as np
 
 from ..constants import FORMAT_VERSION
 from ..errors import FormatError, InputError
+from ._json import json_default
 from ..sequence import Obstacle, Sequence
 from ._registry import register
 from .atomic import atomic_file
@@ -94,14 +95,6 @@ def decode_attr(value):
     if isinstance(value, np.generic):
         return value.item()
     return value
-
-
-def json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
 
 
 def write_attrs(obj, attrs: dict) -> None:

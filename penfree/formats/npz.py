@@ -23,7 +23,7 @@ from ..errors import FormatError, InputError
 from ..sequence import Obstacle, Sequence
 from ._registry import register
 from .atomic import atomic_file
-from .hdf5 import json_default
+from ._json import json_default
 
 POSITION_KEYS = ("positions", "vertices_seq")
 

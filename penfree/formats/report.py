@@ -61,6 +61,7 @@ import os
 import numpy as np
 
 from .._version import __version__
+from ._json import json_safe
 from ..constants import DEFAULT_CD_SHARE, DEFAULT_FRAME_MS
 from ..core.ladder import model_ladder
 from ..core.stats import R_HIST_EDGES, STARTS, TARGETS, compute_stats, stats_keys, summarize
@@ -71,23 +72,6 @@ REPORT_SCHEMA = 1
 #: Rows of the worst-steps table.
 WORST_STEPS = 10
 PROJECTED_FORMULA = "T' = T_frame ((1 - f) + f K_deformed / K_baseline) + t_fit, speedup = T_frame / T'"
-
-
-def json_safe(obj):
-    """Numpy -> Python, NaN / inf -> None, recursively (strict JSON)."""
-    if isinstance(obj, dict):
-        return {str(k): json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_safe(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return json_safe(obj.tolist())
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if obj is None or isinstance(obj, (bool, int, float, str)):
-        return obj
-    return str(obj)
 
 
 def certificate_summary(steps) -> dict:

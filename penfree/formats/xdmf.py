@@ -30,7 +30,8 @@ from ..errors import FormatError, InputError
 from ..sequence import Obstacle, Sequence
 from ._registry import register
 from .atomic import atomic_file
-from .hdf5 import json_default, open_h5
+from ._json import json_default
+from .hdf5 import open_h5
 
 MAIN_GRID = "penfree"
 OBSTACLE_PREFIX = "obstacle:"
