@@ -91,7 +91,11 @@ def deform_sequence(
     ----------
     seq : Sequence
         Validated input.
-    model, projection : str
+    model : str
+        A model of `fit_step`, or ``"auto"`` (collision-aware choice,
+        `selection.select_step`; needs topology, else `fit_step`'s residual-based auto)
+        or ``"per-component"`` (`components.per_component_step`).
+    projection : str
         As in `fit_step`.
     margin : float or None
         Required lower bound of sigma_min(M(t)). None: thickness / d0 per step when a
