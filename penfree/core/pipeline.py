@@ -16,6 +16,7 @@ import numpy as np
 from ..constants import MARGIN_GAP_RADIUS_FACTOR
 from ..errors import CertificateError, InputError
 from .certificate import certify, fast_margin_bound
+from .stats import query_radius, residual_summary
 from .step import fit_step
 
 
@@ -174,9 +175,10 @@ def deform_sequence(
 
     for k, s in enumerate(S_idx):
         x_prev, x = pos[s - 1], pos[s]
+        x64 = np.asarray(x, dtype=np.float64)
+        x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
         if select:
-            x64 = np.asarray(x, dtype=np.float64)
-            r_q = thickness + float(np.linalg.norm(x64 - np.asarray(x_prev, dtype=np.float64), axis=1).max())
+            r_q = query_radius(x64, x_pred, thickness)
             d_start = per_vertex_separation(x64, E, F, r_q)
             m, d0 = step_margin(x, seq, thickness, margin, d0=float(d_start.min()) if len(d_start) else r_q)
         else:
@@ -206,21 +208,15 @@ def deform_sequence(
         out["rank"][k] = r.rank
         out["time_fit_s"][k] = r.time_fit_s
 
-        x64 = np.asarray(x, dtype=np.float64)
-        x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
-        x_def64 = np.asarray(r.x_def, dtype=np.float64)
         targets = {"pred": x_pred}
         if s + 1 < T:
-            targets["next"] = np.asarray(pos[s + 1], dtype=np.float64)
+            targets["next"] = pos[s + 1]
         for tgt, y in targets.items():
-            d_def = np.linalg.norm(x_def64 - y, axis=1)
-            d_base = np.linalg.norm(x64 - y, axis=1)
-            out[f"residual_{tgt}_rms"][k] = math.sqrt(float(np.mean(d_def**2)))
-            out[f"residual_{tgt}_max"][k] = float(d_def.max())
-            out[f"baseline_{tgt}_rms"][k] = math.sqrt(float(np.mean(d_base**2)))
-            out[f"baseline_{tgt}_max"][k] = float(d_base.max())
+            out[f"residual_{tgt}_rms"][k], out[f"residual_{tgt}_max"][k] = residual_summary(r.x_def, y)
+            out[f"baseline_{tgt}_rms"][k], out[f"baseline_{tgt}_max"][k] = residual_summary(x64, y)
             if per_vertex:
-                out[f"residual_{tgt}_per_vertex"][k] = d_def
+                out[f"residual_{tgt}_per_vertex"][k] = np.linalg.norm(
+                    np.asarray(r.x_def, dtype=np.float64) - np.asarray(y, dtype=np.float64), axis=1)
         if progress is not None:
             progress()
 
