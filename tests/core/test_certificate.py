@@ -15,6 +15,9 @@ from penfree.core.certificate import (
 )
 from penfree.errors import InputError
 
+from _geom import rot
+
+
 T_DENSE = np.linspace(0.0, 1.0, 4001)
 
 
@@ -32,13 +35,6 @@ def refined_min(A):
     r = minimize_scalar(lambda t: sigma_min_path(A, np.array([t]))[0], bounds=(lo, hi),
                         method="bounded", options={"xatol": 1e-14})
     return min(float(s.min()), float(r.fun))
-
-
-def rot(axis, deg):
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    th = np.deg2rad(deg)
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * K @ K
 
 
 @pytest.fixture

@@ -11,22 +11,12 @@ from hypothesis import strategies as st
 from penfree.core import fit as F
 from penfree.errors import InputError
 
+from _geom import rot, prev_for
+
 
 @pytest.fixture
 def rng():
     return np.random.default_rng(7)
-
-
-def rot(axis, deg):
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    th = np.deg2rad(deg)
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * K @ K
-
-
-def prev_for(x, A, b):
-    """x_prev such that x_pred = 2 x - x_prev = A x + b."""
-    return 2 * x - (x @ A.T + b)
 
 
 def lstsq_fit(x_prev, x, w=None):

@@ -8,17 +8,12 @@ from penfree.core.certificate import certify, fast_margin_bound
 from penfree.core.projection import is_certified, project, project_svd, project_sym
 from penfree.errors import InputError
 
+from _geom import rot
+
 
 @pytest.fixture
 def rng():
     return np.random.default_rng(11)
-
-
-def rot(axis, deg):
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    th = np.deg2rad(deg)
-    Kx = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * Kx @ Kx
 
 
 def sym(X):

@@ -12,21 +12,12 @@ from penfree.core.fit import fit_model, fit_moments, residual_gain
 from penfree.core.step import StepResult, fit_step
 from penfree.errors import InputError
 
+from _geom import rot, prev_for
+
 
 @pytest.fixture
 def rng():
     return np.random.default_rng(3)
-
-
-def rot(axis, deg):
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    th = np.deg2rad(deg)
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * K @ K
-
-
-def prev_for(x, A, b):
-    return 2 * x - (x @ A.T + b)
 
 
 def check_result(r: StepResult, x_prev, x, margin):
