@@ -131,6 +131,9 @@ SIGMA_ROUNDING_C = 64.0
 #: stored x_def (float32 outputs round at ~6e-8 relative) cannot make a prediction
 #: exceed the bound recomputed at the deformed state.
 PREDICT_SLACK_REL = 1e-6
+#: Predicted K of a candidate under which some moving vertex may have no room at all
+#: (predicted bound 0 where the start bound is positive): worse than any finite count.
+K_UNBOUNDED = 1 << 62
 #: Candidates besides the model ladder: the affine map with singular values clamped
 #: into [1 - delta, 1 + delta], and the blends I + alpha D_affine.
 SELECT_CLAMP_LEVELS = (0.1, 0.03, 0.01, 0.003)

@@ -6,7 +6,7 @@ Importable (``sys.path.insert(0, "samples"); import generate``) and a script::
         [--seed S] [--dtype float32|float64]
     python samples/generate.py SCENE -o OUT_DIR --mesh obj|ply ...
 
-Scenes: rods, cloth, twisting-cloth, cables (simulated, ``scenes.py``),
+Scenes: rods, cloth, twisting-cloth, cables, twisted-cables (simulated, ``scenes.py``),
 yarn-bundle, cloth-ref (kinematic 64K reference scenes, ``reference.py``).
 Every scene function returns ``(positions, topology, attrs)``; `write_h5`
 writes the SPEC section 2 layout and `write_mesh_sequence` numbered OBJ
@@ -35,6 +35,7 @@ SCENES = {
     "cloth": scenes.cloth,
     "twisting-cloth": scenes.twisting_cloth,
     "cables": scenes.cables,
+    "twisted-cables": scenes.twisted_cables,
     "yarn-bundle": reference.yarn_bundle,
     "cloth-ref": reference.cloth_ref,
 }

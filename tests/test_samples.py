@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 
 import h5py
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"
-H5_SAMPLES = ["rods", "cloth", "twisting_cloth", "cables"]
+H5_SAMPLES = ["rods", "cloth", "twisting_cloth", "cables", "twisted_cables"]
 #: Committed files must stay small (brief: <= ~1.5 MB each, < ~5 MB in total).
 MAX_BYTES = 1_600_000
 
@@ -24,6 +25,17 @@ def _load_module(name):
 
 
 check = _load_module("check")
+
+
+@pytest.fixture(scope="module")
+def pbd():
+    # Imported by its own name (not via _load_module), as the generator scripts do:
+    # Numba's on-disk cache of the solver's kernels re-imports the module by name.
+    if str(SAMPLES) not in sys.path:
+        sys.path.insert(0, str(SAMPLES))
+    import pbd as mod
+
+    return mod
 
 
 @pytest.fixture(scope="module", params=H5_SAMPLES)
@@ -184,3 +196,62 @@ def test_step_min_distance_finds_a_crossing():
     along = check.step_min_distance(x0, x1, edges, None, 1.0, 16)
     assert at_frames == pytest.approx(0.1, abs=1e-12)
     assert along == pytest.approx(0.0, abs=1e-12)
+
+
+# --- the sample solver's contact geometry against the checker's distances -----
+
+def _pair_distance(pbd, x, row, kind):
+    g = np.zeros(4)
+    n = pbd._weights(x, row[0], row[1], row[2], row[3], kind, g)
+    assert g.sum() == pytest.approx(0.0, abs=1e-12)  # a difference of two points
+    return np.linalg.norm(n)
+
+
+@pytest.mark.parametrize("case", CASES_PT.values(), ids=CASES_PT.keys())
+def test_solver_point_triangle_closest_point(pbd, case):
+    x = np.array(case, dtype=float)
+    assert _pair_distance(pbd, x, (0, 1, 2, 3), 0) == pytest.approx(check.point_triangle(*x), abs=1e-12)
+
+
+@pytest.mark.parametrize("case", CASES_SS.values(), ids=CASES_SS.keys())
+def test_solver_segment_closest_points(pbd, case):
+    x = np.array(case, dtype=float)
+    assert _pair_distance(pbd, x, (0, 1, 2, 3), 1) == pytest.approx(check.segment_segment(*x), abs=1e-12)
+
+
+def test_solver_closest_points_random(pbd):
+    rng = np.random.default_rng(3)
+    P = rng.normal(size=(300, 4, 3))
+    for kind, ref in ((0, check.point_triangle(P[:, 0], P[:, 1], P[:, 2], P[:, 3])),
+                      (1, check.segment_segment(P[:, 0], P[:, 1], P[:, 2], P[:, 3]))):
+        got = [_pair_distance(pbd, P[k], (0, 1, 2, 3), kind) for k in range(len(P))]
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
+
+
+def test_solver_contact_keeps_strands_apart(pbd):
+    """Two strands thrown at each other: contact stops them above the thickness.
+
+    Without self-contact the same throw passes one strand through the other.
+    """
+    n = 12
+    s = np.linspace(-0.1, 0.1, n)
+    a = np.column_stack([s, np.zeros(n), np.zeros(n)])
+    b = np.column_stack([np.zeros(n), s, np.full(n, 0.03)])
+    x = np.concatenate([a, b])
+    starts, counts = np.array([0, n]), np.array([n, n])
+    edges = pbd.chain_edges(starts, counts)
+    h = 0.2 / (n - 1)
+    thickness = 0.25 * h
+    mins = {}
+    for contact in (False, True):
+        sim = pbd.Solver(x, np.full(2 * n, 1e-3), pbd.chain_constraints(starts, counts, 1e-7, 1e-5),
+                         gravity=np.zeros(3))
+        sim.v[n:, 2] = -2.0  # 2 m/s: through the other strand within 0.02 s
+        if contact:
+            sim.self_contact(radius=0.5 * h, thickness=thickness, edges=edges)
+        X = sim.run(12, 1.0 / 240.0, substeps=8, iters=12)
+        mins[contact] = min(check.step_min_distance(X[k], X[k + 1], edges, None, 0.05, 16)
+                            for k in range(len(X) - 1))
+        assert X[-1, n:, 2].mean() < 0.0 or contact  # the free throw ends below the other strand
+    assert mins[False] < thickness
+    assert mins[True] > thickness

@@ -90,19 +90,24 @@ def predicted_bounds(d_start, sigma, r_q, thickness, gamma=K.DEFAULT_GAMMA):
     return gamma * np.maximum(0.0, d - thickness)
 
 
-def predict_passes(x_def, y, b) -> dict:
+def predict_passes(x_def, y, b, unbounded=False) -> dict:
     """Hit rate, K_1pct, K_any and r_q99 of `y` from `x_def` with bounds `b`, O(N).
 
     Same definitions as `stats.ratio_stats` (blocked vertices left out of K, numpy's
-    "higher" percentile), using a partition instead of a sort.
+    "higher" percentile), using a partition instead of a sort. With `unbounded`, a
+    moving vertex with ``b = 0`` is not left out but has ``r = inf`` (the reading for
+    predicted bounds, which are lower bounds: the actual bound may be tiny and
+    positive); K is then `K_UNBOUNDED` when the percentile is infinite.
     """
     dist = np.linalg.norm(np.asarray(y, dtype=np.float64) - np.asarray(x_def, dtype=np.float64), axis=1)
     n_all = dist.size
     moving = dist > 0
-    blocked = moving & ~(b > 0)
-    ok = moving & ~blocked
+    zero_b = moving & ~(b > 0)
+    blocked = zero_b & (not unbounded)
+    ok = moving & ~zero_b
     r = np.zeros(n_all)
     r[ok] = dist[ok] / b[ok]
+    r[zero_b & ~blocked] = np.inf
     keep = r[~blocked]
     out = {"hit_rate": float(np.count_nonzero(~blocked & (r <= 1.0)) / n_all), "n_blocked": int(blocked.sum())}
     if keep.size == 0:
@@ -111,8 +116,13 @@ def predict_passes(x_def, y, b) -> dict:
     idx = -((-K.K_PERCENTILE * (keep.size - 1)) // 100)
     q99 = float(np.partition(keep, idx)[idx])
     r_max = float(keep.max())
-    out.update(r_q99=q99, r_max=r_max, k_1pct=max(1, math.ceil(q99)), k_any=max(1, math.ceil(r_max)))
+    out.update(r_q99=q99, r_max=r_max, k_1pct=_passes_from(q99), k_any=_passes_from(r_max))
     return out
+
+
+def _passes_from(r):
+    """``max(1, ceil(r))``, or `K_UNBOUNDED` for r = inf."""
+    return max(1, math.ceil(r)) if r < K.K_UNBOUNDED else K.K_UNBOUNDED
 
 
 def _summary(hits, n_blocked, n_all, quantile):
@@ -122,7 +132,7 @@ def _summary(hits, n_blocked, n_all, quantile):
         out.update(k_any=1, k_1pct=1, r_q99=0.0, r_max=0.0)
         return out
     q99, r_max = quantile()
-    out.update(r_q99=q99, r_max=r_max, k_1pct=max(1, math.ceil(q99)), k_any=max(1, math.ceil(r_max)))
+    out.update(r_q99=q99, r_max=r_max, k_1pct=_passes_from(q99), k_any=_passes_from(r_max))
     return out
 
 
@@ -192,8 +202,12 @@ def predict_map_passes(x_prev, x, D, u, c, d_start, sigma, r_q, thickness=0.0, g
 def _predict(x_prev, x, D, u, c, d_start, sigma, r_q, thickness, gamma, r):
     """`predict_map_passes` on validated arrays (the per-candidate call of `select_step`)."""
     n = x.shape[0]
-    s = sigma * (1.0 - K.PREDICT_SLACK_REL)  # the scalar product predicted_bounds forms first
-    hits, n_blocked = predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r)
+    # Doing nothing leaves x_def = x bit for bit: its bounds are the start bounds
+    # exactly (no rounding slack) and a zero bound there is a real zero (blocked).
+    nothing = not (D.any() or u.any())
+    s = 1.0 if nothing else sigma * (1.0 - K.PREDICT_SLACK_REL)  # as predicted_bounds forms it
+    hits, n_blocked = predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r,
+                                     unbounded=not nothing)
 
     def quantile():
         # Blocked vertices hold -inf, below every kept ratio: shift the index past them.

@@ -20,14 +20,16 @@ from .. import constants as K
 from .fit_kernels import _named
 
 
-def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, r, n_chunks):
+def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, unbounded, r, n_chunks):
     # Per vertex, with the same operations (and order) as
     #   predict_passes(apply_map(x, D, u, c), 2 x - x_prev, predicted_bounds(d_start, ...)):
     #   x_def = x + (D (x - c) + u), rounded to the stored dtype;
     #   dist  = |x_pred - x_def| with x_pred = 2 x - x_prev in float64;
     #   b     = gamma * max(0, min(r_q, s * d_start) - thickness), s = sigma (1 - slack).
     # A blocked vertex (moving, b not > 0) gets r = -inf, so that the non-blocked
-    # ratios are exactly the top N - n_blocked entries of r in sorted order.
+    # ratios are exactly the top N - n_blocked entries of r in sorted order. With
+    # `unbounded` such a vertex is not left out but gets r = +inf: a predicted bound of
+    # 0 is only a lower bound, the recomputed one may be tiny and positive.
     # x, x_prev are flat (3N,) views and the index is unsigned: with a constant
     # stride 3 and no negative-index wraparound LLVM vectorises the loop (~4x).
     n = d_start.shape[0]
@@ -66,9 +68,10 @@ def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, r,
             t = t - thickness
             b = gamma * (0.0 if t < 0.0 else t)
             moving = dist > 0.0
-            is_blocked = moving & ~(b > 0.0)
+            zero_b = moving & ~(b > 0.0)
+            is_blocked = zero_b & ~unbounded
             rv = dist / b  # IEEE division (error_model="numpy"); masked where b is not > 0
-            rv = rv if moving & ~is_blocked else 0.0
+            rv = rv if moving & ~zero_b else (np.inf if zero_b else 0.0)
             r[i] = -np.inf if is_blocked else rv
             blocked += np.int64(is_blocked)
             hits += np.int64(~is_blocked & (rv <= 1.0))
@@ -85,16 +88,19 @@ _predict_serial = njit(cache=True, error_model="numpy")(_named(_predict_py, "_pr
 _predict_parallel = njit(cache=True, parallel=True, error_model="numpy")(_named(_predict_py, "_predict_parallel"))
 
 
-def predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r):
+def predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r, unbounded=True):
     """Fill `r` (N,) float64 with the candidate's ratios; return ``(hits, n_blocked)``.
 
-    Inputs as validated by `selection.select_step`; ``s = sigma * (1 - PREDICT_SLACK_REL)``.
+    Inputs as validated by `selection.select_step`; ``s = sigma * (1 - PREDICT_SLACK_REL)``
+    (1 for doing nothing, whose bounds are the start bounds exactly). `unbounded`: a
+    moving vertex whose predicted bound is 0 gets r = +inf instead of being left out
+    (False only for doing nothing, where a zero bound is exact).
     The chunks are fixed (`REDUCTION_CHUNKS`) and the sums are integers, so the result
     does not depend on the thread count.
     """
     big = x.shape[0] >= K.PARALLEL_MIN_VERTICES
     out32 = x.dtype == np.float32
     res = (_predict_parallel if big else _predict_serial)(
-        x_prev.reshape(-1), x.reshape(-1), D, u, c, d_start, s, r_q, thickness, gamma, out32, r,
-        K.REDUCTION_CHUNKS)
+        x_prev.reshape(-1), x.reshape(-1), D, u, c, d_start, s, r_q, thickness, gamma, out32,
+        bool(unbounded), r, K.REDUCTION_CHUNKS)
     return int(res[0]), int(res[1])

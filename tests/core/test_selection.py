@@ -208,7 +208,7 @@ def _scene_step(kind, dtype, offset, seed):
     r_q = 0.01 + float(np.linalg.norm(x_pred - V, axis=1).max())
     _, E_, F_ = scene_arrays(V, E, F)
     d = per_vertex_separation(np.ascontiguousarray(V), E_, F_, r_q)
-    d[5:12] = 0.0  # blocked: must move but have no room
+    d[5:7] = 0.0  # blocked: must move but have no room (under 1% of the vertices)
     return x_prev, x, d, r_q
 
 
@@ -226,25 +226,32 @@ def test_fused_prediction_matches_apply_then_predict(kind, offset, dtype):
     assert len(cands) >= 8
     for cand in cands:
         x_def, _ = _fit.apply_map(x, cand.D, cand.u, m.c)
-        b = predicted_bounds(d, cand.sigma_lb, r_q, thickness)
-        ref = predict_passes(x_def, x_pred, b)
+        nothing = cand.name == "none"
+        # Doing nothing: the start bounds exactly, zero bounds blocked (left out).
+        # Any map: lower bounds, and a zero lower bound gives r = inf (counted).
+        sigma = 1.0 / (1.0 - K.PREDICT_SLACK_REL) if nothing else cand.sigma_lb
+        b = predicted_bounds(d, sigma, r_q, thickness)
+        ref = predict_passes(x_def, x_pred, b, unbounded=not nothing)
         got = predict_map_passes(x_prev, x, cand.D, cand.u, m.c, d, cand.sigma_lb, r_q, thickness)
-        s = cand.sigma_lb * (1.0 - K.PREDICT_SLACK_REL)
-        counts = predict_kernel(x_prev, x, cand.D, cand.u, m.c, d, s, r_q, thickness, K.DEFAULT_GAMMA, r_buf)
+        s = 1.0 if nothing else cand.sigma_lb * (1.0 - K.PREDICT_SLACK_REL)
+        counts = predict_kernel(x_prev, x, cand.D, cand.u, m.c, d, s, r_q, thickness, K.DEFAULT_GAMMA, r_buf,
+                                unbounded=not nothing)
         assert counts == (round(ref["hit_rate"] * len(x)), ref["n_blocked"])
         assert list(got) == list(ref)
         for key in ("hit_rate", "n_blocked", "k_1pct", "k_any"):
             assert got[key] == ref[key], (cand.name, key)
-        assert ref["n_blocked"] == 7
+        assert ref["n_blocked"] == (2 if nothing else 0)
         # Per vertex: x_def may differ from apply_map's in its last bit (apply_map fuses
         # multiply-adds; a float32 store can then round the other way), so r may differ
         # by one unit of x_def's dtype at the largest coordinate, divided by the bound.
         dist = np.linalg.norm(x_pred - x_def.astype(np.float64), axis=1)
-        blocked = (dist > 0) & ~(b > 0)
-        r_ref = np.where(blocked, -np.inf, np.where(dist > 0, dist / np.where(b > 0, b, 1.0), 0.0))
+        zero_b = (dist > 0) & ~(b > 0)
+        r_ref = np.where(zero_b, -np.inf if nothing else np.inf,
+                         np.where(dist > 0, dist / np.where(b > 0, b, 1.0), 0.0))
         tol = np.where(b > 0, 2.0 * np.sqrt(3.0) * eps * np.abs(x_def).max() / np.where(b > 0, b, 1.0), 0.0)
-        assert np.array_equal(np.isinf(r_buf), blocked)
-        ok = ~blocked
+        assert np.array_equal(np.isinf(r_buf), zero_b)
+        assert nothing or got["k_any"] == K.K_UNBOUNDED
+        ok = ~zero_b
         assert np.all(np.abs(r_buf[ok] - r_ref[ok]) <= tol[ok]), cand.name
         tol_q = tol[ok].max()
         np.testing.assert_allclose(got["r_q99"], ref["r_q99"], rtol=0, atol=tol_q)
@@ -255,9 +262,10 @@ def test_fused_prediction_exact_for_doing_nothing():
     # D = 0, u = 0 reproduces x bit for bit, so the fused predictor equals the numpy one.
     x_prev, x, d, r_q = _scene_step("rods", np.float64, 0.0, seed=12)
     x_pred = 2.0 * x - x_prev
-    b = predicted_bounds(d, 1.0, r_q, 0.0)
+    b = K.DEFAULT_GAMMA * np.maximum(0.0, np.minimum(r_q, d))  # the start bounds, thickness 0
     got = predict_map_passes(x_prev, x, np.zeros((3, 3)), np.zeros(3), np.zeros(3), d, 1.0, r_q)
     assert got == predict_passes(x, x_pred, b)
+    assert got["n_blocked"] == 2
 
 
 def test_all_blocked_prediction():
@@ -307,3 +315,33 @@ def test_predict_map_passes_checks_its_arrays(change, match):
     args.update(change)
     with pytest.raises(InputError, match=match):
         predict_map_passes(**args)
+
+
+def test_zero_predicted_bound_is_not_left_out():
+    # Vertices that rest at the thickness (gap barely above it, as after an OGC
+    # truncation) have tiny positive bounds. A map that may shrink gaps predicts 0 for
+    # them; leaving them out of K (as blocked) would be optimistic, since the
+    # recomputed bound is tiny and positive and its ratio huge. They must count as
+    # r = inf, so that any map moving them loses to doing nothing.
+    rng = np.random.default_rng(21)
+    n = 400
+    x = rng.uniform(-1, 1, (n, 3))
+    x_prev = x - 0.01 * np.array([1.0, 0.5, 0.0]) - 0.001 * rng.standard_normal((n, 3))
+    thickness, r_q = 0.05, 0.2
+    d = np.full(n, r_q)
+    stuck = np.arange(20)  # 5 %: they do not move in the prediction and sit at the thickness
+    d[stuck] = thickness * (1.0 + 1e-9)
+    x_prev[stuck] = x[stuck]
+    squeeze = np.diag([0.99, 1.0, 1.0]) - np.eye(3)
+    got = predict_map_passes(x_prev, x, squeeze, np.zeros(3), x.mean(0), d, 0.99, r_q, thickness)
+    assert got["n_blocked"] == 0 and got["k_1pct"] == K.K_UNBOUNDED and np.isinf(got["r_q99"])
+    # Doing nothing keeps the exact start bounds: the stuck vertices do not move (r = 0).
+    none = predict_map_passes(x_prev, x, np.zeros((3, 3)), np.zeros(3), np.zeros(3), d, 1.0, r_q, thickness)
+    assert none["k_1pct"] < K.K_UNBOUNDED and none["n_blocked"] == 0
+    # And the choice: every candidate moves the stuck vertices, so nothing wins.
+    res, table = select_step(x_prev, x, d, r_q=r_q, thickness=thickness)
+    assert res.model == "none"
+    # (A map that expands, like the similarity here, keeps a tiny positive bound: finite
+    # but huge.)
+    assert all(row["k_1pct"] > 1000 for row in table if row["name"] != "none"), table
+    assert any(row["k_1pct"] == K.K_UNBOUNDED for row in table)
