@@ -6,7 +6,8 @@ Importable (``sys.path.insert(0, "samples"); import generate``) and a script::
         [--seed S] [--dtype float32|float64]
     python samples/generate.py SCENE -o OUT_DIR --mesh obj|ply ...
 
-Scenes: rods, cloth, twisting-cloth, cables, twisted-cables (simulated, ``scenes.py``),
+Scenes: rods, cloth, twisting-cloth, twisting-cloth-contact, cables, twisted-cables
+(simulated, ``scenes.py``),
 yarn-bundle, cloth-ref (kinematic 64K reference scenes, ``reference.py``).
 Every scene function returns ``(positions, topology, attrs)``; `write_h5`
 writes the SPEC section 2 layout and `write_mesh_sequence` numbered OBJ
@@ -35,6 +36,7 @@ SCENES = {
     "cloth": scenes.cloth,
     "twisting-cloth": scenes.twisting_cloth,
     "cables": scenes.cables,
+    "twisting-cloth-contact": scenes.twisting_cloth_contact,
     "twisted-cables": scenes.twisted_cables,
     "yarn-bundle": reference.yarn_bundle,
     "cloth-ref": reference.cloth_ref,

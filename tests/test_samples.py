@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"
-H5_SAMPLES = ["rods", "cloth", "twisting_cloth", "cables", "twisted_cables"]
+H5_SAMPLES = ["rods", "cloth", "twisting_cloth", "twisting_cloth_contact", "cables", "twisted_cables"]
 #: Committed files must stay small (brief: <= ~1.5 MB each, < ~5 MB in total).
 MAX_BYTES = 1_600_000
 
