@@ -274,7 +274,6 @@ class Solver:
         self.sphere_r = 0.0
         self.friction = 0.0
         self.contact = None
-        self.truncations = 0
 
     def pin(self, idx, fn):
         """Pin vertices `idx`; `fn(t) -> (len(idx), 3)` gives their targets at time t."""
@@ -287,24 +286,23 @@ class Solver:
         self.sphere_r = float(radius)
         self.friction = float(friction)
 
-    def self_contact(self, radius, thickness, *, edges=None, faces=None, friction=0.3,
-                     gamma=0.45, truncate=True):
+    def self_contact(self, radius, thickness, *, edges=None, faces=None, friction=0.3):
         """Enable self-contact (see the module docstring).
 
         Non-adjacent primitive pairs (vertex-face and edge-edge pairs sharing no
         vertex; edge-edge only for segment scenes) closer than `radius` are
         pushed apart, with friction `friction`. `radius` must stay below the
         mesh's own non-adjacent distances at rest (about 0.7 edge lengths on a
-        grid), or the contacts fight the cloth. `thickness` and `gamma` define
-        the OGC bounds every substep is truncated to (query radius
-        ``2 * radius``).
+        grid), or the contacts fight the cloth. `thickness` defines the OGC
+        bounds every substep is truncated to (penfree's default gamma, query
+        radius ``2 * radius``).
         """
         from penfree.core.topology import edges_from_faces
 
         E = np.asarray(edges if faces is None else edges_from_faces(faces), dtype=np.int64)
         self.contact = dict(radius=float(radius), thickness=float(thickness), edges=E,
                             faces=None if faces is None else np.asarray(faces, np.int64),
-                            mu=float(friction), gamma=float(gamma), truncate=bool(truncate))
+                            mu=float(friction))
 
     def _contact_state(self):
         """Candidate contact pairs and the OGC bounds at the current positions."""
@@ -321,11 +319,8 @@ class Solver:
             vf = vertex_face_candidates(self.x, self.x, F, inflation=0.5 * reach)
             rows.insert(0, np.concatenate([vf[:, :1], F[vf[:, 1]]], axis=1))
             kinds.insert(0, np.zeros(len(vf), np.int64))
-        bound = _NO_BOUND
-        if c["truncate"]:
-            bound = trust_region_bounds(self.x, edges=None if F is not None else E, faces=F,
-                                        thickness=c["thickness"], gamma=c["gamma"],
-                                        query_radius=reach)
+        bound = trust_region_bounds(self.x, edges=None if F is not None else E, faces=F,
+                                    thickness=c["thickness"], query_radius=reach)
         prims = np.ascontiguousarray(np.concatenate(rows), dtype=np.int64)
         kinds = np.concatenate(kinds)
         # Pairs more than CONTACT_REACH radii apart at the start of the substep

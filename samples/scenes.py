@@ -155,14 +155,14 @@ def _smoothstep(r):
     return r * r * (3 - 2 * r)
 
 
-def twisting_cloth(vertices=1600, frames=60, seed=0):
-    """A cloth strip held at both ends, one end turning about the long axis.
+def _held_strip(vertices, seed, motion):
+    """The 0.6 m x 0.1 m strip of the twisting scenes, held along both short edges.
 
-    0.6 m x 0.1 m strip (about 6:1 vertex grid) held along both short
-    edges; after settling into its gravity sag (not recorded) the right end
-    turns by up to 150 degrees about the strip's long axis on a smooth ramp
-    and is pulled out by 4 % (stretch), the cloth-twist benchmark kept below
-    the twist at which the strip would touch itself.
+    About a 6:1 vertex grid with a small seeded ripple, XPBD stretch/shear/bending
+    springs, air drag 3 (for settling). ``motion(t) -> (angle, pull)`` drives the
+    right end: turned by `angle` (rad) about the long axis and moved by `pull` (m)
+    along it; the left end stays. Returns ``(sim, faces, nx, ny, h)`` with `h` the
+    smallest rest edge.
     """
     rng = np.random.default_rng(seed)
     ny = max(4, int(round(np.sqrt(vertices / 6.0))))
@@ -178,26 +178,42 @@ def twisting_cloth(vertices=1600, frames=60, seed=0):
     mass = np.full(nx * ny, 0.05 / (nx * ny))
     sim = Solver(x, mass, grid_constraints(nx, ny, stretch=5e-8, shear=1e-6, bend=1e-4),
                  drag=3.0)
-    left, right = np.arange(ny), np.arange((nx - 1) * ny, nx * ny)
-    ends = np.concatenate([left, right])
+    ends = np.concatenate([np.arange(ny), np.arange((nx - 1) * ny, nx * ny)])
     base = x[ends].copy()
-    dt = 1.0 / 120.0
-    settle, t_turn = 0.6, 1.25 * frames * dt
     axis = np.array([1.0, 0.0, 0.0])
     center = np.array([0.0, 0.0, 0.5])
 
     def pin_fn(t):
-        r = _smoothstep((t - settle) / t_turn)
+        angle, pull = motion(t)
         out = base.copy()
-        turned = _rotate(base[ny:] - center, axis, np.full(ny, np.radians(150.0) * r))
-        out[ny:] = center + turned + np.array([0.04 * length * r, 0, 0])
+        turned = _rotate(base[ny:] - center, axis, np.full(ny, angle))
+        out[ny:] = center + turned + np.array([pull, 0, 0])
         return out
 
     sim.pin(ends, pin_fn)
+    return sim, faces, nx, ny, min(length / (nx - 1), width / (ny - 1))
+
+
+def twisting_cloth(vertices=1600, frames=60, seed=0):
+    """A cloth strip held at both ends, one end turning about the long axis.
+
+    0.6 m x 0.1 m strip (about 6:1 vertex grid) held along both short
+    edges; after settling into its gravity sag (not recorded) the right end
+    turns by up to 150 degrees about the strip's long axis on a smooth ramp
+    and is pulled out by 4 % (stretch), the cloth-twist benchmark kept below
+    the twist at which the strip would touch itself.
+    """
+    dt = 1.0 / 120.0
+    settle, t_turn = 0.6, 1.25 * frames * dt
+
+    def motion(t):
+        r = _smoothstep((t - settle) / t_turn)
+        return np.radians(150.0) * r, 0.04 * 0.6 * r  # pulled out 4 % of the length
+
+    sim, faces, nx, ny, h = _held_strip(vertices, seed, motion)
     sim.settle(settle, dt, substeps=8, iters=12)
     sim.drag = 0.5
     X = sim.run(frames, dt, substeps=8, iters=12, t0=settle)
-    h = min(length / (nx - 1), width / (ny - 1))
     return X, {"faces": faces}, {
         "dt": dt, "thickness": 0.25 * h,
         "description": f"twisting-cloth: {nx}x{ny} strip held at both ends, one end "
@@ -324,39 +340,16 @@ def twisting_cloth_contact(vertices=1600, frames=48, seed=0):
     0.45 s into the turn (about 230 degrees), as the first wrinkles fold over;
     contacts then spread along the strip.
     """
-    rng = np.random.default_rng(seed)
-    ny = max(4, int(round(np.sqrt(vertices / 6.0))))
-    nx = max(8, vertices // ny)
-    length, width = 0.6, 0.1
-    u, w = np.meshgrid(np.linspace(0, length, nx), np.linspace(-width / 2, width / 2, ny),
-                       indexing="ij")
-    u, w = u.ravel(), w.ravel()
-    ph = rng.uniform(0, 2 * np.pi)
-    ripple = 0.002 * np.sin(np.pi * u / length) * np.sin(9 * u + ph)
-    x = np.column_stack([u - length / 2, w, 0.5 + ripple])
-    faces = grid_faces(nx, ny)
-    mass = np.full(nx * ny, 0.05 / (nx * ny))
-    sim = Solver(x, mass, grid_constraints(nx, ny, stretch=5e-8, shear=1e-6, bend=1e-4),
-                 drag=3.0)
-    h = min(length / (nx - 1), width / (ny - 1))
-    thickness = 0.25 * h
-    left, right = np.arange(ny), np.arange((nx - 1) * ny, nx * ny)
-    ends = np.concatenate([left, right])
-    base = x[ends].copy()
     dt = 1.0 / 120.0
     settle, t_pre = 0.6, 0.45
     t_turn = t_pre + frames * dt
-    axis = np.array([1.0, 0.0, 0.0])
-    center = np.array([0.0, 0.0, 0.5])
 
-    def pin_fn(t):
+    def motion(t):
         r = np.clip((t - settle) / t_turn, 0.0, 1.0)
-        out = base.copy()
-        turned = _rotate(base[ny:] - center, axis, np.full(ny, np.radians(540.0) * r))
-        out[ny:] = center + turned - np.array([0.1 * length * r, 0, 0])
-        return out
+        return np.radians(540.0) * r, -0.1 * 0.6 * r  # drawn in 10 % of the length
 
-    sim.pin(ends, pin_fn)
+    sim, faces, nx, ny, h = _held_strip(vertices, seed, motion)
+    thickness = 0.25 * h
     sim.settle(settle, dt, substeps=8, iters=12)
     sim.self_contact(radius=0.5 * h, thickness=thickness, faces=faces, friction=0.3)
     sim.drag = 0.5
