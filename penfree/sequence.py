@@ -12,21 +12,32 @@ from .errors import InputError
 
 @dataclass
 class Obstacle:
-    """A kinematic obstacle: its own positions per frame and its topology.
+    """A collider the scene must not enter: a mesh (kinematic or static) or a half-space.
 
     Attributes
     ----------
     name : str
-    positions : (T, M, 3) or (M, 3) float
-        Static obstacles may give one frame; `frame(s)` hides the difference.
+    positions : (T, M, 3) or (M, 3) float, or None
+        Mesh obstacles; static obstacles may give one frame; `frame(s)` hides the
+        difference. None for a half-space.
     faces : (K, 3) int64 or None
     edges : (K, 2) int64 or None
+    normal : (3,) float64 or None
+        Half-space obstacles: the plane ``normal . x = offset``; the free side is
+        ``normal . x > offset``.
+    offset : float or None
     """
 
     name: str
-    positions: np.ndarray
+    positions: Optional[np.ndarray] = None
     faces: Optional[np.ndarray] = None
     edges: Optional[np.ndarray] = None
+    normal: Optional[np.ndarray] = None
+    offset: Optional[float] = None
+
+    @property
+    def is_half_space(self) -> bool:
+        return self.normal is not None
 
     def frame(self, s: int) -> np.ndarray:
         """Positions `(M, 3)` at frame `s` (the same array for a static obstacle)."""
@@ -52,7 +63,11 @@ class Sequence:
     components : (N,) int64 or None
         Object labels.
     thickness : float
-        Contact distance; 0 when the file gives none.
+        Hard minimum separation that deform guarantees and verify checks; 0 (the
+        default) means intersection-free.
+    contact_radius : float
+        The simulator's contact / offset distance; sizes the trust-region query only,
+        never a separation requirement. 0 when the file gives none.
     dt : float or None
     source : str or None
         Free text from the file (simulator, scene).
@@ -69,6 +84,7 @@ class Sequence:
     weights: Optional[np.ndarray] = None
     components: Optional[np.ndarray] = None
     thickness: float = 0.0
+    contact_radius: float = 0.0
     dt: Optional[float] = None
     source: Optional[str] = None
     obstacles: list = field(default_factory=list)

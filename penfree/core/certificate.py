@@ -275,6 +275,23 @@ def certify(A, margin: float = 0.0) -> bool:
     return count_roots_01(certificate_polynomial(A, m)) == 0
 
 
+def certify_map(A, margin: float = 0.0) -> bool:
+    """The one certification gate: ``True`` iff `A` provably keeps ``sigma_min(I + tD) > margin``.
+
+    The cheap rigorous bound decides first (``fast_margin_bound(A) > margin`` implies
+    ``certify(A, margin)``); the exact rational test decides the rest. Every path that
+    writes or proposes a map goes through this function.
+
+    >>> certify_map(np.eye(3))
+    True
+    """
+    A = _check_A(A)
+    m = _check_margin(margin)
+    if not np.isfinite(A).all():
+        return False
+    return _fast_bound(A) > m or count_roots_01(certificate_polynomial(A, m)) == 0
+
+
 def _sampled_sigma_min(A, n: int = 65) -> float:
     t = np.linspace(0.0, 1.0, n)
     M = np.eye(3) + t[:, None, None] * (A - np.eye(3))

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..constants import MARGIN_GAP_RADIUS_FACTOR
 from ..errors import CertificateError, InputError
-from .certificate import certify, fast_margin_bound
+from .certificate import certify_map
 from .stats import query_radius, residual_summary
 from .step import fit_step
 
@@ -196,8 +196,8 @@ def deform_sequence(
             r = _applied(res)
         else:
             r = _applied(fit_step(x_prev, x, weights=weights, model=model, projection=projection, margin=m))
-        for A_applied in r.maps:  # belt and braces: the fast test first, the exact one if needed
-            if not (fast_margin_bound(A_applied) > (m or 0.0) or certify(A_applied, m or 0.0)):
+        for A_applied in r.maps:  # belt and braces: every applied map through the one gate
+            if not certify_map(A_applied, m or 0.0):
                 raise CertificateError(f"step {s}: the applied map failed the exact certificate (margin {m})")
         out["A"][k], out["b"][k] = r.A, r.b
         out["deformed"][k] = r.x_def

@@ -13,17 +13,14 @@ import numpy as np
 
 from .. import constants as K
 from ..errors import InputError
-from .certificate import _fast_bound, certify
+from .certificate import certify_map
 
 _I3 = np.eye(3)
 
 
 def is_certified(D, margin: float) -> bool:
     """``certify(I + D, margin)`` for the float64 ``A = I + D``; fast test first."""
-    A = _I3 + np.asarray(D, dtype=np.float64)
-    if _fast_bound(A) > margin:
-        return True
-    return certify(A, margin)
+    return certify_map(_I3 + np.asarray(D, dtype=np.float64), margin)
 
 
 def _safety(S) -> float:

@@ -29,7 +29,7 @@ import numpy as np
 from .. import constants as K
 from ..errors import InputError
 from . import fit as _fit
-from .certificate import certified_margin, certify, fast_margin_bound
+from .certificate import certified_margin, certify_map, fast_margin_bound
 from .projection import project
 from .selection_kernels import predict_kernel
 from .step import StepResult
@@ -240,7 +240,7 @@ def _certified(name, D, u, rank, m, margin, projection):
 
 
 def _passes(A, margin):
-    return fast_margin_bound(A) > margin or certify(A, margin)
+    return certify_map(A, margin)
 
 
 def candidate_maps(m, margin=0.0, projection="auto") -> list:
