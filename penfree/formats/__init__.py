@@ -10,6 +10,8 @@ npz        ``.npz``                     ``positions``/``vertices_seq`` + topolog
 meshseq    pattern, glob, directory,    numbered mesh files through meshio;
            numbered ``.ply``/``.obj``   OBJ (with ``l`` polylines) read natively
 xdmf       ``.xdmf`` ``.xmf``           temporal collection, geometry per step
+usd        ``.usd`` ``.usda`` ``.usdc``  needs the ``usd`` extra (usd-core); meshes and
+                                        linear curves, colliders as obstacles, metres
 =========  ===========================  =========================================
 
 >>> import penfree
@@ -24,7 +26,7 @@ import os
 from ..errors import InputError
 from ..sequence import Sequence
 from ._registry import FORMATS, register
-from . import hdf5, npz, meshseq, xdmf  # noqa: E402,F401  (each registers itself)
+from . import hdf5, npz, meshseq, xdmf, usd  # noqa: E402,F401  (each registers itself)
 
 __all__ = ["read_sequence", "write_sequence", "detect_format", "output_paths", "register", "FORMATS"]
 
@@ -55,7 +57,7 @@ def detect_format(path, *, writing: bool = False) -> str:
     raise InputError(f"cannot tell the format of {path} from its name or content; expected one of: {known}, or pass --format")
 
 
-def read_sequence(path, format: str | None = None) -> Sequence:
+def read_sequence(path, format: str | None = None, **options) -> Sequence:
     """Read and validate a sequence.
 
     Parameters
@@ -63,8 +65,11 @@ def read_sequence(path, format: str | None = None) -> Sequence:
     path : str or os.PathLike
         A file, or for ``meshseq`` a printf pattern (``out/A%08d.ply``), a glob
         (``frames/frame_*.obj``), a directory or one numbered file.
-    format : {"hdf5", "npz", "meshseq", "xdmf"} or None
+    format : {"hdf5", "npz", "meshseq", "xdmf", "usd"} or None
         None: detected from the name and content.
+    **options
+        Reader options, e.g. ``prims=["/World/Cloth"]``, ``obstacles=[...]`` for USD.
+        Empty values (None, ``()``) are ignored, so callers may always pass them.
 
     Returns
     -------
@@ -78,7 +83,12 @@ def read_sequence(path, format: str | None = None) -> Sequence:
     """
     path = os.fspath(path)
     spec = _by_name(format) if format else FORMATS[detect_format(path)]
-    seq = spec.reader(path)
+    options = {k: v for k, v in options.items() if v}
+    for key in options:
+        if key not in spec.options:
+            raise InputError(f"option {key} does not apply to {path} ({spec.name}); "
+                             f"{spec.name} reads {', '.join(spec.options) or 'no options'}")
+    seq = spec.reader(path, **options)
     seq.origin = path
     return seq.validate()
 

@@ -25,6 +25,8 @@ class FormatSpec:
         magic bytes of an existing input).
     outputs : callable ``(path: str) -> list of str`` or None
         Every path the writer creates (XDMF writes a heavy-data file beside the XML).
+    options : tuple of str
+        Keyword options the reader accepts besides the path (USD: ``prims``, ``obstacles``).
     """
 
     name: str
@@ -33,12 +35,13 @@ class FormatSpec:
     writer: Callable
     sniff: Optional[Callable] = None
     outputs: Optional[Callable] = None
+    options: tuple = ()
 
 
 FORMATS: dict = {}
 
 
-def register(name, extensions, reader, writer, sniff=None, outputs=None) -> None:
+def register(name, extensions, reader, writer, sniff=None, outputs=None, options=()) -> None:
     """Register a format under `name` for `extensions` (later registrations replace)."""
     exts = tuple(e.lower() if e.startswith(".") else "." + e.lower() for e in extensions)
-    FORMATS[name] = FormatSpec(name, exts, reader, writer, sniff, outputs)
+    FORMATS[name] = FormatSpec(name, exts, reader, writer, sniff, outputs, tuple(options))
