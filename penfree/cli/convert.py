@@ -3,7 +3,7 @@
 import click
 
 from .info import FORMAT_NAMES
-from .options import overwrite_option
+from .options import overwrite_option, usd_options
 
 
 @click.command("convert")
@@ -16,7 +16,8 @@ from .options import overwrite_option
 @click.option("--deformed", is_flag=True,
               help="IN is a `penfree deform` result: write its deformed states (one frame per step).")
 @overwrite_option
-def command(input_path, output_path, out_format, in_format, deformed, overwrite):
+@usd_options
+def command(input_path, output_path, out_format, in_format, deformed, overwrite, usd_prims, usd_obstacles):
     """Convert the sequence IN to OUT (written atomically; IN is never modified).
 
     \b
@@ -24,6 +25,8 @@ def command(input_path, output_path, out_format, in_format, deformed, overwrite)
       penfree convert 'out/A%08d.ply' frames.h5
       penfree convert frames.h5 meshes/ --format meshseq   # meshes/frame_0000.ply ...
       penfree convert deformed.h5 deformed.xdmf --deformed # the deformed states
+      penfree convert deformed.h5 deformed.usda --deformed # recorded + deformed prims
+      penfree convert sim.usd frames.h5 --prim /World/Cloth
     """
     from ..formats import detect_format, output_paths, read_sequence, write_sequence
     from ..formats.atomic import check_output
@@ -33,11 +36,20 @@ def command(input_path, output_path, out_format, in_format, deformed, overwrite)
     inputs = output_paths(input_path, in_format)  # XDMF input: its heavy-data file too
     for p in output_paths(output_path, out_format):
         check_output(p, overwrite, inputs=inputs)
+    if deformed and out_format == "usd":  # both the recorded frames and the deformed states
+        from ..formats.result import read_result
+        from ..formats.usd import write_usd_result
+
+        result = read_result(input_path)
+        write_usd_result(output_path, result, overwrite=overwrite)
+        click.echo(f"wrote {output_path} (usd): {result.sequence.n_frames} recorded frames and "
+                   f"{len(result.steps['frame'])} deformed states, {result.sequence.n_vertices} vertices")
+        return
     if deformed:
         from ..formats.result import deformed_sequence, read_result
 
         seq = deformed_sequence(read_result(input_path))
     else:
-        seq = read_sequence(input_path, format=in_format)
+        seq = read_sequence(input_path, format=in_format, prims=usd_prims, obstacles=usd_obstacles)
     write_sequence(output_path, seq, format=out_format, overwrite=overwrite)
     click.echo(f"wrote {output_path} ({out_format}): {seq.n_frames} frames, {seq.n_vertices} vertices, {seq.kind}")

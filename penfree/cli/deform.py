@@ -11,7 +11,7 @@ from ..constants import MODELS, PROJECTIONS
 from ..errors import InputError
 from .options import (
     Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames,
-    set_threads, thickness_option, threads_option,
+    set_threads, thickness_option, threads_option, usd_options,
 )
 
 
@@ -38,9 +38,10 @@ from .options import (
 @click.option("--stats", "with_stats", is_flag=True,
               help="Also compute trust-region statistics (stats/...) for `penfree report`.")
 @click.option("--format", "in_format", default=None, help="Input format (default: from the extension).")
+@usd_options
 @json_option
 def command(input_path, output_path, model, projection, margin, thickness, frames, weights_name,
-            threads, overwrite, per_vertex, with_stats, in_format, as_json):
+            threads, overwrite, per_vertex, with_stats, in_format, usd_prims, usd_obstacles, as_json):
     """Fit, certify and apply a global affine map to every step of IN.
 
     Each step s moves frame s toward the prediction 2 x^s - x^(s-1); the straight path
@@ -54,7 +55,7 @@ def command(input_path, output_path, model, projection, margin, thickness, frame
     check_output(output_path, overwrite, inputs=[input_path])
     frame_slice = parse_frames(frames)
     set_threads(threads)
-    seq = read_sequence(input_path, format=in_format)
+    seq = read_sequence(input_path, format=in_format, prims=usd_prims, obstacles=usd_obstacles)
     weights = _read_weights(input_path, weights_name, seq) if weights_name else None
 
     t0 = time.perf_counter()

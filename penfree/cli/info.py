@@ -2,9 +2,9 @@
 
 import click
 
-from .options import echo_json, json_option
+from .options import echo_json, json_option, usd_options
 
-FORMAT_NAMES = ("hdf5", "npz", "meshseq", "xdmf")
+FORMAT_NAMES = ("hdf5", "npz", "meshseq", "xdmf", "usd")
 
 
 def _fmt(value):
@@ -40,6 +40,9 @@ def _lines(d: dict) -> list:
         ("components", d["components"]),
     ]
     for ob in d["obstacles"]:
+        if ob.get("half_space"):
+            rows.append((f"obstacle {ob['name']}", f"half-space n.x > {_fmt(ob['offset'])}, n = {_fmt(ob['normal'])}"))
+            continue
         topo = f"{ob['faces']} faces" if ob["faces"] else f"{ob['edges']} edges"
         rows.append((f"obstacle {ob['name']}", f"{ob['vertices']} vertices, {topo}, {'static' if ob['static'] else 'moving'}"))
     res = d.get("result")
@@ -61,8 +64,9 @@ def _lines(d: dict) -> list:
 @click.argument("path", metavar="FILE")
 @click.option("--format", "in_format", type=click.Choice(FORMAT_NAMES), default=None,
               help="Input format (default: from the name and content).")
+@usd_options
 @json_option
-def command(path, in_format, as_json):
+def command(path, in_format, usd_prims, usd_obstacles, as_json):
     """Describe FILE: frames, vertices, topology, bounding box, per-step motion.
 
     FILE is a sequence in any readable format (a mesh sequence may be given as
@@ -70,15 +74,34 @@ def command(path, in_format, as_json):
     models, projections and the smallest certificate margin are shown too.
     """
     from ..core.describe import describe, describe_result
-    from ..formats import read_sequence
+    from ..formats import detect_format, read_sequence
     from ..formats.result import is_result_file, read_result
 
     if in_format in (None, "hdf5") and is_result_file(path):
         d = describe_result(read_result(path))
     else:
-        d = describe(read_sequence(path, format=in_format))
+        d = describe(read_sequence(path, format=in_format, prims=usd_prims, obstacles=usd_obstacles))
+        if (in_format or detect_format(path)) == "usd":
+            from ..formats.usd import describe_stage
+
+            d["usd"] = describe_stage(path, usd_prims, usd_obstacles)
     if as_json:
         echo_json(d)
         return
-    for line in _lines(d):
+    for line in _lines(d) + (_usd_lines(d["usd"]) if "usd" in d else []):
         click.echo(line)
+
+
+def _usd_lines(u: dict) -> list:
+    """The USD stage: every geometric prim and its role, time codes, units."""
+    tc = u["time_codes"]
+    mpu = f"{u['meters_per_unit']:g}" + ("" if u["meters_per_unit_authored"] else " (not authored: USD fallback)")
+    lines = [
+        f"usd time codes:   {tc['first']:g}..{tc['last']:g} ({tc['count']} frames; stage range "
+        f"{'-' if u['stage_start_end'] is None else '{:g}..{:g}'.format(*u['stage_start_end'])})",
+        f"usd units:        metersPerUnit {mpu} (positions read in metres), upAxis {u['up_axis']}, "
+        f"timeCodesPerSecond {u['time_codes_per_second']:g}, dt {_fmt(u['dt'])}",
+    ]
+    for p in u["prims"]:
+        lines.append(f"usd prim {p['path']} ({p['type']}): {p['role']} - {p['detail']}")
+    return lines

@@ -39,6 +39,15 @@ thickness_option = click.option(
 )
 
 
+def usd_options(f):
+    """``--prim PATH`` and ``--obstacle PATH`` (repeatable), passed to the USD reader as ``prims``/``obstacles``."""
+    f = click.option("--obstacle", "usd_obstacles", multiple=True, metavar="PATH",
+                     help="USD input: also read this prim as an obstacle (repeatable).")(f)
+    return click.option("--prim", "usd_prims", multiple=True, metavar="PATH",
+                        help="USD input: read these prims as the scene (repeatable; default: every "
+                             "time-sampled Mesh and linear BasisCurves).")(f)
+
+
 def set_threads(threads):
     if threads is None:
         return

@@ -72,7 +72,8 @@ def describe(seq: Sequence) -> dict:
         ``motion`` (``max`` and ``rms`` per step, each summarised as
         ``min``/``median``/``max`` over steps, plus ``per_step_max``/``per_step_rms`` lists),
         ``thickness``, ``dt``, ``source``, ``weights``, ``components``, ``obstacles``
-        (list of dicts: ``name``, ``vertices``, ``faces``, ``edges``, ``static``), ``origin``.
+        (list of dicts: ``name``, ``vertices``, ``faces``, ``edges``, ``static``; half-spaces add
+        ``half_space``, ``normal``, ``offset``), ``origin``.
 
     Notes
     -----
@@ -105,16 +106,20 @@ def describe(seq: Sequence) -> dict:
         "source": seq.source,
         "weights": seq.weights is not None,
         "components": None if seq.components is None else int(len(np.unique(seq.components))),
-        "obstacles": [
-            {
-                "name": ob.name,
-                "vertices": int(ob.positions.shape[-2]),
-                "faces": 0 if ob.faces is None else int(len(ob.faces)),
-                "edges": 0 if ob.edges is None else int(len(ob.edges)),
-                "static": ob.positions.ndim == 2,
-            }
-            for ob in seq.obstacles
-        ],
+        "obstacles": [_obstacle(ob) for ob in seq.obstacles],
+    }
+
+
+def _obstacle(ob) -> dict:
+    if ob.is_half_space:
+        return {"name": ob.name, "half_space": True, "normal": np.asarray(ob.normal, dtype=float).tolist(),
+                "offset": float(ob.offset), "vertices": 0, "faces": 0, "edges": 0, "static": True}
+    return {
+        "name": ob.name,
+        "vertices": int(ob.positions.shape[-2]),
+        "faces": 0 if ob.faces is None else int(len(ob.faces)),
+        "edges": 0 if ob.edges is None else int(len(ob.edges)),
+        "static": ob.positions.ndim == 2,
     }
 
 

@@ -179,6 +179,8 @@ def open_stage(path: str, prims=(), obstacles=()) -> StageScan:
             scan.scene.append(prim)
         elif role == "obstacle":
             scan.obstacles.append(prim)
+    if named_scene:  # the order the user gave, which is the order of the components
+        scan.scene.sort(key=lambda prim: named_scene.index(str(prim.GetPath())))
     if not scan.scene:
         found = ", ".join(f"{e.path} ({e.type}: {e.detail})" for e in scan.entries) or "no geometric prims"
         raise InputError(f"no usable prim in {path}:/ ; expected a Mesh or linear BasisCurves with time-sampled "
@@ -474,6 +476,13 @@ def read_usd(path: str, prims=(), obstacles=()) -> Sequence:
 def describe_stage(path: str, prims=(), obstacles=()) -> dict:
     """What ``read_usd`` would take from `path`: prims and roles, frames, units, dt (for ``penfree info``)."""
     scan = open_stage(path, prims, obstacles)
+    _, _, _, _, UsdGeom, _, _ = _pxr(path)
+    for e in scan.entries:
+        prim = scan.stage.GetPrimAtPath(e.path)
+        if e.role == "scene" and prim.IsA(UsdGeom.Mesh):
+            C = np.asarray(UsdGeom.Mesh(prim).GetFaceVertexCountsAttr().Get(scan.times[0]) or [])
+            if (C > 3).any():
+                e.detail += f"; {int((C > 3).sum())} of {len(C)} polygons fan-triangulated"
     return {
         "prims": [e.__dict__.copy() for e in scan.entries],
         "time_codes": {"first": scan.times[0], "last": scan.times[-1], "count": len(scan.times)},
@@ -509,6 +518,19 @@ def _chains(edges, n, where):
     return counts, "periodic" if closing else "nonperiodic"
 
 
+def _check_edges_in_faces(seq):
+    if seq.edges is None or not len(seq.edges):
+        return
+    F = seq.faces
+    face_edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    extra = np.sort(seq.edges, axis=1)
+    known = {tuple(e) for e in face_edges.tolist()}
+    lone = [e for e in extra.tolist() if tuple(e) not in known]
+    if lone:
+        raise InputError(f"{seq.origin} has {len(lone)} edge(s) outside its faces (e.g. {lone[0]}); a USD Mesh "
+                         f"cannot store them: write the faces and the edges as separate sequences")
+
+
 def _set_points(prim_schema, X, codes, Vt, Sdf, where):
     """Time-sampled points (float32 by schema; float64 also as ``penfree:points``) and extents."""
     pts = prim_schema.GetPointsAttr()
@@ -526,6 +548,7 @@ def _set_points(prim_schema, X, codes, Vt, Sdf, where):
 def _define_shape(stage, path, X, codes, seq, mods, role=None):
     Gf, Sdf, Tf, Usd, UsdGeom, UsdPhysics, Vt = mods
     if seq.faces is not None and len(seq.faces):
+        _check_edges_in_faces(seq)
         geom = UsdGeom.Mesh.Define(stage, path)
         geom.CreateSubdivisionSchemeAttr("none")  # viewers must not smooth the triangles
         geom.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(seq.faces), 3, dtype=np.int32)))
@@ -622,6 +645,8 @@ def _write_stage(path, seq, overwrite, shapes_to_write):
     for prim_path, X, prim_codes, role in shapes_to_write:
         _define_shape(stage, prim_path, X, [codes[c] for c in prim_codes], seq, mods, role)
     extent = float(np.ptp(seq.positions[0].astype(np.float64), axis=0).max() or 1.0)
+    if seq.obstacles:
+        UsdGeom.Xform.Define(stage, "/World/Obstacles")
     for ob in seq.obstacles:
         _define_obstacle(stage, ob, codes, extent, mods)
     with atomic_file(path, overwrite) as tmp:
