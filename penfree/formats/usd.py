@@ -20,8 +20,9 @@ Reading (``read_usd``):
   plane's axis); ``UsdGeomCube``, ``UsdGeomSphere`` and ``UsdGeomCapsule`` become
   triangle meshes that *contain* the shape (see ``_usd_shapes``: a step safe
   against the mesh is safe against the shape); meshes with ``PhysicsCollisionAPI``
-  and prims named with ``obstacles=`` (``--obstacle PATH``) become mesh
-  obstacles. A time-varying world transform gives a kinematic obstacle.
+  whose points do not deform (simulated cloth often carries the API too: deforming
+  points make it scene) and prims named with ``obstacles=`` (``--obstacle PATH``)
+  become mesh obstacles. A time-varying world transform gives a kinematic obstacle.
 - **Distances.** ``thickness`` and ``contact_radius`` come from a custom
   attribute of a scene prim (``penfree:thickness`` or ``thickness``, likewise
   ``contact_radius``), else from the root layer's ``customLayerData`` (top level
@@ -196,17 +197,25 @@ def _classify(scan, prim, kind, p, named_scene, named_obstacles, UsdGeom, UsdPhy
         return "scene", "named with --prim"
     if kind in ANALYTIC:
         return "obstacle", "half-space" if kind == "Plane" else "analytic collider, tessellated conservatively"
-    if prim.IsA(UsdGeom.Mesh) and prim.HasAPI(UsdPhysics.CollisionAPI):
+    role = prim.GetAttribute(ROLE)
+    role = role.Get() if role.IsValid() else None
+    deforming = prim.GetAttribute("points").IsValid() and prim.GetAttribute("points").GetNumTimeSamples() > 1
+    if role == "obstacle":
+        return "obstacle", "penfree obstacle"
+    if prim.IsA(UsdGeom.Mesh) and prim.HasAPI(UsdPhysics.CollisionAPI) and not deforming:
         return "obstacle", "mesh with PhysicsCollisionAPI"
     if not (prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdGeom.BasisCurves)):
         return "ignored", "unsupported prim type"
     if named_scene:
         return "ignored", "not named with --prim"
-    role = prim.GetAttribute(ROLE)
-    if role.IsValid() and role.Get() == "deformed":
+    if role == "deformed":
         return "ignored", "penfree deformed states (choose with --prim)"
     if len(_sample_times(prim, UsdGeom)) < 2:
         return "ignored", "static (name it with --prim or --obstacle)"
+    if prim.HasAPI(UsdPhysics.CollisionAPI):
+        # Simulated cloth often carries the collision API too; its points deform, a collider's do not.
+        return "scene", "time-sampled points (deforming, so read as scene despite PhysicsCollisionAPI; " \
+                        "--obstacle makes it a collider)"
     return "scene", "time-sampled"
 
 
@@ -419,6 +428,14 @@ def read_usd(path: str, prims=(), obstacles=()) -> Sequence:
     obstacles : iterable of str
         Extra obstacle prim paths (``--obstacle``), besides the colliders found.
     """
+    Tf = _pxr(path)[2]
+    try:
+        return _read(path, prims, obstacles)
+    except Tf.ErrorException as exc:
+        raise FormatError(f"{path} is a damaged USD stage ({_tf_message(exc)}); expected a readable .usd/.usda/.usdc") from None
+
+
+def _read(path, prims, obstacles) -> Sequence:
     Gf, Sdf, Tf, Usd, UsdGeom, UsdPhysics, Vt = _pxr(path)
     scan = open_stage(path, prims, obstacles)
     times = scan.times
@@ -564,7 +581,7 @@ def _define_shape(stage, path, X, codes, seq, mods, role=None):
         geom.CreateWidthsAttr(Vt.FloatArray([width]))
         geom.SetWidthsInterpolation(UsdGeom.Tokens.constant)
     else:
-        geom = UsdGeom.Points.Define(stage, path)
+        raise InputError(f"{seq.origin} has neither faces nor edges; USD output needs a Mesh or BasisCurves topology")
     _set_points(geom, X, codes, Vt, Sdf, path)
     if role is not None:
         geom.GetPrim().CreateAttribute(ROLE, Sdf.ValueTypeNames.String, custom=True).Set(role)
@@ -592,6 +609,7 @@ def _define_obstacle(stage, ob, codes, extent, mods):
             xf.AddTranslateOp().Set(Gf.Vec3d(*(n * float(ob.offset))))
             xf.AddOrientOp(UsdGeom.XformOp.PrecisionDouble).Set(rot.GetQuat())
         UsdPhysics.CollisionAPI.Apply(plane.GetPrim())
+        plane.GetPrim().CreateAttribute(ROLE, Sdf.ValueTypeNames.String, custom=True).Set("obstacle")
         return
     X = np.asarray(ob.positions, dtype=np.float64)
     if X.ndim == 2:
@@ -609,6 +627,7 @@ def _define_obstacle(stage, ob, codes, extent, mods):
         geom.CreateWrapAttr(wrap)
         geom.CreateCurveVertexCountsAttr(Vt.IntArray.FromNumpy(counts.astype(np.int32)))
     _set_points(geom, X, codes, Vt, Sdf, path)
+    geom.GetPrim().CreateAttribute(ROLE, Sdf.ValueTypeNames.String, custom=True).Set("obstacle")
 
 
 def _time_codes(seq) -> list:
@@ -660,7 +679,7 @@ def _write_stage(path, seq, overwrite, shapes_to_write):
 
 
 def write_usd(path: str, seq: Sequence, overwrite: bool = False) -> None:
-    """Write `seq` as ``/World/Scene`` (Mesh, BasisCurves or Points) with time-sampled points.
+    """Write `seq` as ``/World/Scene`` (Mesh or BasisCurves) with time-sampled points.
 
     Time codes are ``attrs["usd_time_codes"]`` when a USD input supplied them, else
     0, 1, ...; ``timeCodesPerSecond`` makes ``dt``. Obstacles go under ``/World/Obstacles``.

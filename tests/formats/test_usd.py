@@ -293,13 +293,15 @@ def test_cube_collider_used_by_verify(tmp_path):
 def test_collision_mesh_and_named_obstacle(tmp_path):
     path = tmp_path / "meshes.usda"
     stage = _stage(path)
-    _falling_sheet(stage, [1.0, 0.9])
+    cloth, _, _ = _falling_sheet(stage, [1.0, 0.9])
+    UsdPhysics.CollisionAPI.Apply(cloth.GetPrim())  # simulated cloth often has it: deforming points keep it scene
     V, Q = _sheet(0.0)
     ground = _mesh(stage, "/World/Ground", [V - [0.5, 0.5, 0]], [4] * len(Q), Q)
     UsdPhysics.CollisionAPI.Apply(ground.GetPrim())
     _mesh(stage, "/World/Prop", [V + [0, 0, 0.2]], [4] * len(Q), Q)  # static, no collision API
     stage.GetRootLayer().Save()
     seq = read_sequence(path)
+    assert seq.attrs["usd_prims"] == ["/World/Cloth"]
     assert [ob.name for ob in seq.obstacles] == ["Ground"] and seq.obstacles[0].faces.shape == (18, 3)
     seq = read_sequence(path, obstacles=["/World/Prop"])
     assert [ob.name for ob in seq.obstacles] == ["Ground", "Prop"]
@@ -435,6 +437,40 @@ def test_deformed_export_has_two_time_sampled_prims_and_obstacles(tmp_path):
     # Read back: the recorded frames by default, the deformed states on request, both exact.
     assert np.array_equal(read_sequence(out).positions, read_sequence(SAMPLE).positions)
     assert np.array_equal(read_sequence(out, prims=["/World/Deformed"]).positions, deformed)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64], ids=["float32", "float64"])
+def test_mesh_obstacles_round_trip(tmp_path, dtype):
+    """Static and kinematic mesh obstacles (faces, edges) survive HDF5 -> USD -> HDF5 exactly."""
+    from penfree.sequence import Obstacle
+
+    seq = _sequence("triangles", dtype)
+    rng = np.random.default_rng(9)
+    V, F = shapes.cube(1.0)
+    seq.obstacles = [
+        Obstacle("box", positions=V + 5.0, faces=F),
+        Obstacle("lid", positions=V[None] + rng.normal(size=(4, 1, 3)), faces=F),
+        Obstacle("rail", positions=rng.random((5, 3)), edges=np.array([[0, 1], [1, 2], [2, 3], [3, 4]])),
+    ]
+    seq.validate()
+    write_sequence(tmp_path / "a.h5", seq)
+    assert _run("convert", tmp_path / "a.h5", tmp_path / "a.usda").exit_code == 0
+    assert _run("convert", tmp_path / "a.usda", tmp_path / "b.h5").exit_code == 0
+    back = read_sequence(tmp_path / "b.h5")
+    assert np.array_equal(back.positions, seq.positions)
+    got = {ob.name: ob for ob in back.obstacles}
+    for ob in seq.obstacles:
+        assert np.array_equal(got[ob.name].positions, ob.positions), ob.name
+        for name in ("faces", "edges"):
+            a, b = getattr(ob, name), getattr(got[ob.name], name)
+            assert (a is None and (b is None or not len(b))) or np.array_equal(a, b), (ob.name, name)
+
+
+def test_writer_refuses_points_without_topology(tmp_path):
+    seq = Sequence(positions=np.zeros((2, 5, 3))).validate()
+    with pytest.raises(InputError, match="neither faces nor edges"):
+        write_sequence(tmp_path / "x.usda", seq)
+    assert not (tmp_path / "x.usda").exists()
 
 
 def test_writer_refuses_edges_outside_faces(tmp_path):
