@@ -7,7 +7,7 @@ lies at least the radius from the centre, the capsule by the convex hull of two
 such icospheres. An affine transform maps containment to containment, so the
 world-space mesh still encloses the world-space shape (also under non-uniform
 scale). The price is a slightly larger collider: :data:`SPHERE_SUBDIVISIONS`
-= 2 puts the icosphere's vertices about 2% of the radius outside the sphere.
+= 2 puts the icosphere's vertices 1.8% of the radius outside the sphere.
 
 Pure numpy (scipy for the capsule hull); no USD import.
 
@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-#: Icosphere subdivision level: 162 vertices, 320 faces; vertices lie at 1.0206 x the
+#: Icosphere subdivision level: 162 vertices, 320 faces; vertices lie at 1.018 x the
 #: radius so that every face plane clears the sphere (containment, not an approximation).
 SPHERE_SUBDIVISIONS = 2
 #: Relative padding on top of the exact clearance, against rounding of the vertex
