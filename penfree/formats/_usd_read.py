@@ -1,0 +1,180 @@
+"""Reading helpers of ``usd``: world-space points in metres, topology, distances, obstacles."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from ..sequence import Obstacle
+from . import _usd_shapes as shapes
+from ._usd_stage import POINTS64
+
+def _world(scan, prim, t, UsdGeom):
+    """Local-to-world ``(3, 3)`` linear part (row-vector convention) and ``(3,)`` translation, in metres."""
+    M = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(t), dtype=np.float64)
+    return M[:3, :3] * scan.meters_per_unit, M[3, :3] * scan.meters_per_unit
+
+
+def _is_identity(L, c) -> bool:
+    return bool(np.array_equal(L, np.eye(3)) and not c.any())
+
+
+def points(scan, prim, times, UsdGeom):
+    """World positions ``(T, n, 3)`` of a point-based prim at `times`."""
+    attr = prim.GetAttribute("points")
+    p64 = prim.GetAttribute(POINTS64)
+    frames, n0 = [], None
+    for t in times:
+        pts = attr.Get(t)
+        if pts is None:
+            raise InputError(f"prim has no points at time code {t:g} in {scan.where(prim)}; expected authored points")
+        x = np.asarray(pts)
+        if n0 is None:
+            n0 = len(x)
+        elif len(x) != n0:
+            raise InputError(f"point count changes over time: {n0} at time code {times[0]:g}, {len(x)} at {t:g} "
+                             f"in {scan.where(prim)}; expected a fixed point count (remeshing is not supported)")
+        if p64.IsValid() and p64.Get(t) is not None:
+            x64 = np.asarray(p64.Get(t), dtype=np.float64)
+            if x64.shape == x.shape and np.array_equal(x64.astype(x.dtype), x):
+                x = x64
+        frames.append(x)
+    X = np.stack(frames) if frames else np.zeros((0, 0, 3))
+    if X.ndim != 3 or X.shape[-1] != 3:
+        raise InputError(f"points must be (n, 3); got {X.shape[1:]} in {scan.where(prim)}")
+    out = X
+    for k, t in enumerate(times):
+        L, c = _world(scan, prim, t, UsdGeom)
+        if not _is_identity(L, c):
+            if out is X:
+                out = X.astype(np.float64)
+            out[k] = X[k].astype(np.float64) @ L + c
+    return out
+
+
+def mesh_topology(scan, prim, UsdGeom, t):
+    mesh = UsdGeom.Mesh(prim)
+    counts = mesh.GetFaceVertexCountsAttr()
+    indices = mesh.GetFaceVertexIndicesAttr()
+    for attr in (counts, indices):
+        samples = attr.GetTimeSamples()
+        if len(samples) > 1 and any(attr.Get(s) != attr.Get(samples[0]) for s in samples[1:]):
+            raise InputError(f"{attr.GetName()} changes over time in {scan.where(prim)}; expected fixed topology")
+    C = np.asarray(counts.Get(t) if counts.Get(t) is not None else [], dtype=np.int64)
+    I = np.asarray(indices.Get(t) if indices.Get(t) is not None else [], dtype=np.int64)
+    if C.sum() != len(I) or (C < 3).any():
+        raise InputError(f"faceVertexCounts (sum {C.sum()}, min {C.min() if len(C) else '-'}) do not match "
+                         f"faceVertexIndices ({len(I)}) in {scan.where(prim)}; expected polygons of >= 3 vertices")
+    holes = np.asarray(mesh.GetHoleIndicesAttr().Get(t) or [], dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(C)[:-1]])
+    keep = np.ones(len(C), dtype=bool)
+    keep[holes[(holes >= 0) & (holes < len(C))]] = False
+    tris = []
+    for k in range(1, int(C.max()) - 1 if len(C) else 1):
+        sel = keep & (C >= k + 2)
+        s = starts[sel]
+        tris.append(np.stack([I[s], I[s + k], I[s + k + 1]], axis=1))
+    F = np.concatenate(tris) if tris else np.zeros((0, 3), dtype=np.int64)
+    # Fan order: interleave so that each polygon's triangles stay together.
+    if len(F):
+        owner = np.concatenate([np.flatnonzero(keep & (C >= k + 2)) for k in range(1, int(C.max()) - 1)])
+        F = F[np.argsort(owner, kind="stable")]
+    if mesh.GetOrientationAttr().Get() == "leftHanded":
+        F = F[:, [0, 2, 1]]
+    return F, int((keep & (C > 3)).sum())
+
+
+def curve_topology(scan, prim, UsdGeom, t):
+    curves = UsdGeom.BasisCurves(prim)
+    ctype = curves.GetTypeAttr().Get()
+    if ctype != "linear":
+        basis = curves.GetBasisAttr().Get()
+        raise InputError(f"{ctype} curves (basis {basis}) are not supported in {scan.where(prim)}; expected "
+                         f"type = \"linear\": resample them to polylines first (Houdini: Resample + Convert to "
+                         f"polygon; Blender: Curve > Convert to Mesh)")
+    C = np.asarray(curves.GetCurveVertexCountsAttr().Get(t) or [], dtype=np.int64)
+    if (C < 2).any():
+        raise InputError(f"curveVertexCounts must be >= 2 for linear curves; got {int(C.min())} in {scan.where(prim)}")
+    periodic = curves.GetWrapAttr().Get() == "periodic"
+    starts = np.concatenate([[0], np.cumsum(C)[:-1]]).astype(np.int64)
+    E, labels = [], []
+    for k, (s, c) in enumerate(zip(starts, C)):
+        a = np.arange(s, s + c - 1)
+        E.append(np.stack([a, a + 1], axis=1))
+        if periodic and c > 2:
+            E.append(np.array([[s + c - 1, s]]))
+        labels.append(np.full(c, k))
+    E = np.concatenate(E) if E else np.zeros((0, 2), dtype=np.int64)
+    return E, (np.concatenate(labels) if labels else np.zeros(0, dtype=np.int64)), int(C.sum())
+
+
+def distance(scan, key, UsdGeom):
+    """thickness / contact_radius in metres: a scene prim's attribute, else the layer metadata."""
+    found = {}
+    for prim in scan.scene:
+        for name in (f"penfree:{key}", key):
+            attr = prim.GetAttribute(name)
+            if attr.IsValid() and attr.HasValue():
+                found[str(prim.GetPath())] = (attr.Get(), f"{scan.where(prim)}.{name}")
+                break
+    if found:
+        values = {_number(v, where) for v, where in found.values()}
+        if len(values) > 1:
+            raise InputError(f"{key} differs between scene prims ({', '.join(found)}) in {scan.path}; expected one value")
+        return values.pop() * scan.meters_per_unit
+    data = dict(scan.stage.GetRootLayer().customLayerData)
+    sub = data.get("penfree")
+    if isinstance(sub, dict) and key in sub:
+        return _number(sub[key], f"{scan.path}:customLayerData.penfree.{key}") * scan.meters_per_unit
+    if key in data:
+        return _number(data[key], f"{scan.path}:customLayerData.{key}") * scan.meters_per_unit
+    return 0.0
+
+
+def _number(value, where) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = float("nan")
+    if not np.isfinite(v) or v < 0:
+        raise InputError(f"expected a finite number >= 0; got {value!r} in {where}")
+    return v
+
+
+def obstacle(scan, prim, names, UsdGeom) -> Obstacle:
+    kind = prim.GetTypeName()
+    name = prim.GetName()
+    if name in names:
+        name = str(prim.GetPath()).strip("/").replace("/", ".")
+    names.add(name)
+    times = scan.times
+    if kind == "Plane":
+        Ls = [_world(scan, prim, t, UsdGeom) for t in times]
+        if any(not (np.array_equal(L, Ls[0][0]) and np.array_equal(c, Ls[0][1])) for L, c in Ls):
+            raise InputError(f"a Plane with a time-varying transform cannot be a half-space in {scan.where(prim)}; "
+                             f"expected a static plane (give a moving floor as a Mesh with PhysicsCollisionAPI)")
+        L, c = Ls[0]
+        axis = np.zeros(3)
+        axis["XYZ".index(UsdGeom.Plane(prim).GetAxisAttr().Get())] = 1.0
+        n = np.linalg.solve(L, axis)  # normals transform by the inverse transpose (row-vector convention)
+        n /= np.linalg.norm(n)
+        return Obstacle(name, normal=n, offset=float(n @ c))
+    if kind in ("Cube", "Sphere", "Capsule"):
+        if kind == "Cube":
+            V, F = shapes.cube(float(UsdGeom.Cube(prim).GetSizeAttr().Get()))
+        elif kind == "Sphere":
+            V, F = shapes.sphere(float(UsdGeom.Sphere(prim).GetRadiusAttr().Get()))
+        else:
+            cap = UsdGeom.Capsule(prim)
+            V, F = shapes.capsule(float(cap.GetRadiusAttr().Get()), float(cap.GetHeightAttr().Get()),
+                                  str(cap.GetAxisAttr().Get()))
+        X = np.stack([V @ L + c for L, c in (_world(scan, prim, t, UsdGeom) for t in times)])
+        return Obstacle(name, positions=X[0] if (X == X[0]).all() else X, faces=F)
+    X = points(scan, prim, times, UsdGeom).astype(np.float64)
+    if prim.IsA(UsdGeom.BasisCurves):
+        E, _, _ = curve_topology(scan, prim, UsdGeom, times[0])
+        return Obstacle(name, positions=X[0] if (X == X[0]).all() else X, edges=E)
+    F, _ = mesh_topology(scan, prim, UsdGeom, times[0])
+    return Obstacle(name, positions=X[0] if (X == X[0]).all() else X, faces=F)
+
+

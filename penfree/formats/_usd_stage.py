@@ -1,0 +1,207 @@
+"""USD stage scan: open a stage and sort its prims into scene, obstacles and ignored (for ``usd``).
+
+One place decides which prim is read as what; ``read_usd`` and ``penfree info`` both
+use :func:`open_stage`. usd-core is imported lazily (:func:`pxr_modules`), so the
+core install works without it.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import FormatError, InputError
+
+EXTENSIONS = (".usd", ".usda", ".usdc")
+INSTALL_HINT = "USD support needs the optional package usd-core: pip install 'penfree[usd]'"
+#: Custom attribute holding float64 positions beside the float32 ``points``.
+POINTS64 = "penfree:points"
+#: Custom attribute marking a prim written by penfree ("recorded" or "deformed").
+ROLE = "penfree:role"
+ANALYTIC = ("Plane", "Cube", "Sphere", "Capsule")
+#: Relative tolerance for "the time codes are evenly spaced" (dt is then defined).
+SPACING_RTOL = 1e-9
+
+
+def pxr_modules(path):
+    try:
+        from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdPhysics, Vt
+    except ImportError:
+        raise InputError(f"cannot read or write {path}: {INSTALL_HINT}") from None
+    return Gf, Sdf, Tf, Usd, UsdGeom, UsdPhysics, Vt
+
+
+def tf_message(exc) -> str:
+    found = re.findall(r"'([^'\n]*)'\s*$", str(exc), flags=re.M)
+    return (found[-1] if found else " ".join(str(exc).split()))[:200]
+
+
+# --- selection -------------------------------------------------------------------
+
+@dataclass
+class PrimEntry:
+    """One geometric prim of a stage and what the reader makes of it."""
+
+    path: str
+    type: str
+    role: str  # "scene", "obstacle" or "ignored"
+    detail: str
+
+
+@dataclass
+class StageScan:
+    """A stage opened and sorted into scene prims, obstacle prims and ignored prims."""
+
+    path: str
+    stage: object
+    scene: list = field(default_factory=list)
+    obstacles: list = field(default_factory=list)
+    entries: list = field(default_factory=list)
+    times: list = field(default_factory=list)
+    meters_per_unit: float = 1.0
+    meters_per_unit_authored: bool = True
+    time_codes_per_second: float = 24.0
+    start_end: tuple | None = None
+    up_axis: str = "Y"
+
+    @property
+    def dt(self):
+        if len(self.times) < 2:
+            return None
+        steps = np.diff(np.asarray(self.times, dtype=np.float64))
+        if np.ptp(steps) > SPACING_RTOL * steps.max():
+            return None
+        return float(steps.mean() / self.time_codes_per_second)
+
+    def where(self, prim) -> str:
+        return f"{self.path}:{prim.GetPath()}"
+
+
+def open_stage(path: str, prims=(), obstacles=()) -> StageScan:
+    """Open `path` and decide which prims are the scene and which are obstacles.
+
+    Raises
+    ------
+    InputError
+        Missing usd-core, missing file, a named prim that does not exist or has
+        the wrong type, or no usable scene prim; one line naming file and prim.
+    """
+    Gf, Sdf, Tf, Usd, UsdGeom, UsdPhysics, Vt = pxr_modules(path)
+    if not os.path.isfile(path):
+        raise InputError(f"no such file: {path}")
+    try:
+        stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
+    except Tf.ErrorException as exc:
+        raise FormatError(f"{path} is not a readable USD stage ({tf_message(exc)}); expected .usd/.usda/.usdc") from None
+    if stage is None:
+        raise FormatError(f"{path} is not a readable USD stage; expected .usd/.usda/.usdc")
+    scan = StageScan(path=path, stage=stage)
+    scan.meters_per_unit = float(UsdGeom.GetStageMetersPerUnit(stage))
+    scan.meters_per_unit_authored = bool(UsdGeom.StageHasAuthoredMetersPerUnit(stage))
+    if not scan.meters_per_unit > 0:
+        raise InputError(f"metersPerUnit must be > 0; got {scan.meters_per_unit} in {path}:/ (stage metadata)")
+    scan.time_codes_per_second = float(stage.GetTimeCodesPerSecond())
+    if not scan.time_codes_per_second > 0:
+        raise InputError(f"timeCodesPerSecond must be > 0; got {scan.time_codes_per_second} in {path}:/ (stage metadata)")
+    scan.up_axis = str(UsdGeom.GetStageUpAxis(stage))
+    if stage.HasAuthoredTimeCodeRange():
+        scan.start_end = (float(stage.GetStartTimeCode()), float(stage.GetEndTimeCode()))
+
+    named_scene, named_obstacles = [str(p) for p in prims], [str(p) for p in obstacles]
+    for p in named_scene + named_obstacles:
+        if not Sdf.Path.IsValidPathString(p) or not stage.GetPrimAtPath(p).IsValid():
+            raise InputError(f"no prim {p} in {path}; `penfree info {path}` lists the prims")
+    both = set(named_scene) & set(named_obstacles)
+    if both:
+        raise InputError(f"prim {sorted(both)[0]} in {path} is named both with --prim and --obstacle; choose one")
+    for p in named_scene:
+        prim = stage.GetPrimAtPath(p)
+        if not (prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdGeom.BasisCurves)):
+            raise InputError(f"--prim {p} in {path} is a {prim.GetTypeName() or 'typeless prim'}; expected a Mesh or BasisCurves")
+    for p in named_obstacles:
+        prim = stage.GetPrimAtPath(p)
+        if not (prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdGeom.BasisCurves) or prim.GetTypeName() in ANALYTIC):
+            raise InputError(f"--obstacle {p} in {path} is a {prim.GetTypeName() or 'typeless prim'}; "
+                             f"expected a Mesh, BasisCurves, Plane, Cube, Sphere or Capsule")
+
+    candidates = set(named_scene) | set(named_obstacles)
+    for prim in stage.Traverse():
+        p = str(prim.GetPath())
+        if not (prim.IsA(UsdGeom.Gprim) or p in candidates):
+            continue
+        kind = prim.GetTypeName()
+        role, detail = _classify(scan, prim, kind, p, named_scene, named_obstacles, UsdGeom, UsdPhysics)
+        scan.entries.append(PrimEntry(p, kind, role, detail))
+        if role == "scene":
+            scan.scene.append(prim)
+        elif role == "obstacle":
+            scan.obstacles.append(prim)
+    if named_scene:  # the order the user gave, which is the order of the components
+        scan.scene.sort(key=lambda prim: named_scene.index(str(prim.GetPath())))
+    if not scan.scene:
+        found = ", ".join(f"{e.path} ({e.type}: {e.detail})" for e in scan.entries) or "no geometric prims"
+        raise InputError(f"no usable prim in {path}:/ ; expected a Mesh or linear BasisCurves with time-sampled "
+                         f"points or transform; found {found}")
+    scan.times = _frame_times(scan, UsdGeom)
+    return scan
+
+
+def _classify(scan, prim, kind, p, named_scene, named_obstacles, UsdGeom, UsdPhysics):
+    if p in named_obstacles:
+        return "obstacle", "named with --obstacle"
+    if p in named_scene:
+        return "scene", "named with --prim"
+    if kind in ANALYTIC:
+        return "obstacle", "half-space" if kind == "Plane" else "analytic collider, tessellated conservatively"
+    role = prim.GetAttribute(ROLE)
+    role = role.Get() if role.IsValid() else None
+    deforming = prim.GetAttribute("points").IsValid() and prim.GetAttribute("points").GetNumTimeSamples() > 1
+    if role == "obstacle":
+        return "obstacle", "penfree obstacle"
+    if prim.IsA(UsdGeom.Mesh) and prim.HasAPI(UsdPhysics.CollisionAPI) and not deforming:
+        return "obstacle", "mesh with PhysicsCollisionAPI"
+    if not (prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdGeom.BasisCurves)):
+        return "ignored", "unsupported prim type"
+    if named_scene:
+        return "ignored", "not named with --prim"
+    if role == "deformed":
+        return "ignored", "penfree deformed states (choose with --prim)"
+    if len(_sample_times(prim, UsdGeom)) < 2:
+        return "ignored", "static (name it with --prim or --obstacle)"
+    if prim.HasAPI(UsdPhysics.CollisionAPI):
+        # Simulated cloth often carries the collision API too; its points deform, a collider's do not.
+        return "scene", "time-sampled points (deforming, so read as scene despite PhysicsCollisionAPI; " \
+                        "--obstacle makes it a collider)"
+    return "scene", "time-sampled"
+
+
+def _sample_times(prim, UsdGeom) -> list:
+    """Authored time samples of the points and of every transform up to the root."""
+    times = set()
+    pts = prim.GetAttribute("points")
+    if pts.IsValid():
+        times.update(pts.GetTimeSamples())
+    p = prim
+    while p.IsValid() and not p.IsPseudoRoot():
+        if p.IsA(UsdGeom.Xformable):
+            times.update(UsdGeom.Xformable(p).GetTimeSamples())
+        p = p.GetParent()
+    return sorted(times)
+
+
+def _frame_times(scan: StageScan, UsdGeom) -> list:
+    times = sorted({t for prim in scan.scene for t in _sample_times(prim, UsdGeom)})
+    if scan.start_end is not None:
+        lo, hi = scan.start_end
+        times = [t for t in times if lo <= t <= hi]
+    if len(times) < 2:
+        names = ", ".join(str(prim.GetPath()) for prim in scan.scene)
+        span = "" if scan.start_end is None else f" within startTimeCode..endTimeCode {scan.start_end[0]:g}..{scan.start_end[1]:g}"
+        raise InputError(f"prim {names} in {scan.path} has {len(times)} time sample(s){span}; "
+                         f"expected at least 2 (time-sampled points or transform)")
+    return times
+
+
