@@ -150,32 +150,71 @@ def open_stage(path: str, prims=(), obstacles=()) -> StageScan:
 
 
 def _classify(scan, prim, kind, p, named_scene, named_obstacles, UsdGeom, UsdPhysics):
+    """``(role, detail)`` of one prim; the one place that decides what a prim is read as."""
     if p in named_obstacles:
         return "obstacle", "named with --obstacle"
     if p in named_scene:
         return "scene", "named with --prim"
+    if _in_point_instancer(prim, UsdGeom):
+        # Prototypes are templates (Newton's viewer draws joints and contacts this way), not placed geometry.
+        return "ignored", "prototype of a PointInstancer (instances are not read)"
     if kind in ANALYTIC:
         return "obstacle", "half-space" if kind == "Plane" else "analytic collider, tessellated conservatively"
     role = prim.GetAttribute(ROLE)
     role = role.Get() if role.IsValid() else None
-    deforming = prim.GetAttribute("points").IsValid() and prim.GetAttribute("points").GetNumTimeSamples() > 1
     if role == "obstacle":
         return "obstacle", "penfree obstacle"
-    if prim.IsA(UsdGeom.Mesh) and prim.HasAPI(UsdPhysics.CollisionAPI) and not deforming:
-        return "obstacle", "mesh with PhysicsCollisionAPI"
     if not (prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdGeom.BasisCurves)):
         return "ignored", "unsupported prim type"
+    deforming = _points_change(scan, prim)
+    collider = prim.HasAPI(UsdPhysics.CollisionAPI)
+    if prim.IsA(UsdGeom.Mesh) and collider and not deforming:
+        return "obstacle", "mesh with PhysicsCollisionAPI"
     if named_scene:
         return "ignored", "not named with --prim"
     if role == "deformed":
         return "ignored", "penfree deformed states (choose with --prim)"
-    if len(_sample_times(prim, UsdGeom)) < 2:
+    if not deforming:
+        if _transform_changes(prim, _sample_times(prim, UsdGeom), UsdGeom):
+            return "ignored", "moves rigidly (fixed points, time-sampled transform): name it with --prim or --obstacle"
         return "ignored", "static (name it with --prim or --obstacle)"
-    if prim.HasAPI(UsdPhysics.CollisionAPI):
+    if collider:
         # Simulated cloth often carries the collision API too; its points deform, a collider's do not.
-        return "scene", "time-sampled points (deforming, so read as scene despite PhysicsCollisionAPI; " \
-                        "--obstacle makes it a collider)"
-    return "scene", "time-sampled"
+        return "scene", "deforming points (read as scene despite PhysicsCollisionAPI; --obstacle makes it a collider)"
+    return "scene", "deforming points"
+
+
+def _in_point_instancer(prim, UsdGeom) -> bool:
+    p = prim.GetParent()
+    while p.IsValid() and not p.IsPseudoRoot():
+        if p.IsA(UsdGeom.PointInstancer):
+            return True
+        p = p.GetParent()
+    return False
+
+
+def _transform_changes(prim, times, UsdGeom) -> bool:
+    xf = UsdGeom.Xformable(prim)
+    first = xf.ComputeLocalToWorldTransform(times[0]) if times else None
+    return any(xf.ComputeLocalToWorldTransform(t) != first for t in times[1:])
+
+
+def _points_change(scan, prim) -> bool:
+    """True if the authored points differ between time samples (within the stage's range)."""
+    attr = prim.GetAttribute("points")
+    if not attr.IsValid():
+        return False
+    times = attr.GetTimeSamples()
+    if scan.start_end is not None:
+        times = [t for t in times if scan.start_end[0] <= t <= scan.start_end[1]]
+    if len(times) < 2:
+        return False
+    first = np.asarray(attr.Get(times[0]))
+    for t in times[1:]:
+        x = np.asarray(attr.Get(t))
+        if x.shape != first.shape or not np.array_equal(x, first):
+            return True
+    return False
 
 
 def _sample_times(prim, UsdGeom) -> list:

@@ -299,6 +299,13 @@ def test_collision_mesh_and_named_obstacle(tmp_path):
     ground = _mesh(stage, "/World/Ground", [V - [0.5, 0.5, 0]], [4] * len(Q), Q)
     UsdPhysics.CollisionAPI.Apply(ground.GetPrim())
     _mesh(stage, "/World/Prop", [V + [0, 0, 0.2]], [4] * len(Q), Q)  # static, no collision API
+    rigid = _mesh(stage, "/World/Rigid", [V + [0, 0, 0.5]] * 2, [4] * len(Q), Q)  # same points twice
+    move = rigid.AddTranslateOp()
+    move.Set(Gf.Vec3d(0, 0, 0), 0.0)
+    move.Set(Gf.Vec3d(0, 0, 1), 1.0)
+    inst = UsdGeom.PointInstancer.Define(stage, "/World/Joints")
+    UsdGeom.Sphere.Define(stage, "/World/Joints/sphere")
+    inst.CreatePrototypesRel().AddTarget("/World/Joints/sphere")
     stage.GetRootLayer().Save()
     seq = read_sequence(path)
     assert seq.attrs["usd_prims"] == ["/World/Cloth"]
@@ -310,13 +317,19 @@ def test_collision_mesh_and_named_obstacle(tmp_path):
     assert r.exit_code == 0 and "usd prim /World/Prop (Mesh): obstacle - named with --obstacle" in r.output
     r = _run("info", path)
     assert "usd prim /World/Prop (Mesh): ignored - static" in r.output
+    assert "usd prim /World/Rigid (Mesh): ignored - moves rigidly" in r.output
+    assert "usd prim /World/Joints/sphere (Sphere): ignored - prototype of a PointInstancer" in r.output
+    assert "usd prim /World/Cloth (Mesh): scene - deforming points (read as scene despite" in r.output
+    rigid = read_sequence(path, obstacles=["/World/Rigid"]).obstacles[1]
+    assert rigid.name == "Rigid" and rigid.positions.shape == (2, 16, 3)
+    assert np.array_equal(rigid.positions[1] - rigid.positions[0], np.tile([0, 0, 1.0], (16, 1)))
 
 
 def test_kinematic_collider_transform(tmp_path):
     """A box whose parent moves up (time-sampled translate) hits a hovering sheet in step 1."""
     path = tmp_path / "kin.usda"
     stage = _stage(path, mpu=0.5)
-    _falling_sheet(stage, [2.0, 2.0, 2.0])
+    _falling_sheet(stage, [2.0, 2.01, 2.02])
     rig = UsdGeom.Xform.Define(stage, "/World/Lift")
     lift = rig.AddTranslateOp()
     heights = [0.0, 0.5, 2.0]
