@@ -143,8 +143,8 @@ def open_stage(path: str, prims=(), obstacles=()) -> StageScan:
         scan.scene.sort(key=lambda prim: named_scene.index(str(prim.GetPath())))
     if not scan.scene:
         found = ", ".join(f"{e.path} ({e.type}: {e.detail})" for e in scan.entries) or "no geometric prims"
-        raise InputError(f"no usable prim in {path}:/ ; expected a Mesh or linear BasisCurves with time-sampled "
-                         f"points or transform; found {found}")
+        raise InputError(f"no usable prim in {path}:/ ; expected a Mesh or linear BasisCurves whose time-sampled "
+                         f"points deform (or name prims with --prim); found {found}")
     scan.times = _frame_times(scan, UsdGeom)
     return scan
 

@@ -2,9 +2,10 @@
 
 Reading (``read_usd``):
 
-- **Scene.** Every ``UsdGeomMesh`` and linear ``UsdGeomBasisCurves`` whose points
-  or world transform are time-sampled, or exactly the prims named with
-  ``prims=`` (CLI ``--prim PATH``, repeatable). Meshes give triangles (quads and
+- **Scene.** Every ``UsdGeomMesh`` and linear ``UsdGeomBasisCurves`` whose
+  time-sampled points change (deform), or exactly the prims named with ``prims=``
+  (CLI ``--prim PATH``, repeatable, in that order). Static and rigidly moving
+  meshes and ``PointInstancer`` prototypes are ignored (``_usd_stage`` decides). Meshes give triangles (quads and
   n-gons are fan-triangulated; ``attrs["usd_triangulated"]`` counts the polygons
   split); curves give segments. Each mesh prim is one component, each curve one
   component. Cubic curves are refused (resample them to linear first).
@@ -61,7 +62,7 @@ def read_usd(path: str, prims=(), obstacles=()) -> Sequence:
     ----------
     path : str
     prims : iterable of str
-        Scene prim paths (``--prim``); empty: every time-sampled Mesh/BasisCurves.
+        Scene prim paths (``--prim``); empty: every deforming Mesh/linear BasisCurves.
     obstacles : iterable of str
         Extra obstacle prim paths (``--obstacle``), besides the colliders found.
     """
