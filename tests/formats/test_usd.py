@@ -581,11 +581,21 @@ def test_missing_usd_core_says_how_to_install(tmp_path, monkeypatch, direction):
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
-def test_not_a_stage_is_one_line(tmp_path):
-    path = tmp_path / "junk.usda"
-    path.write_text("this is not usd\n")
-    line = _error_line(_run("info", path))
-    assert "junk.usda" in line and "not a readable USD stage" in line
+@pytest.mark.parametrize("case", ["text", "truncated-crate", "empty"])
+def test_not_a_stage_is_one_line(tmp_path, case):
+    if case == "text":
+        path = tmp_path / "junk.usda"
+        path.write_text("this is not usd\n")
+    elif case == "truncated-crate":
+        write_sequence(tmp_path / "whole.usdc", _sequence("triangles", np.float64))
+        path = tmp_path / "junk.usdc"
+        path.write_bytes((tmp_path / "whole.usdc").read_bytes()[:2000])
+    else:
+        path = tmp_path / "junk.usd"
+        path.write_bytes(b"")
+    line = _error_line(_run("convert", path, tmp_path / "out.h5"))
+    assert path.name in line and "not a readable USD stage" in line
+    assert not (tmp_path / "out.h5").exists()
 
 
 def test_shapes_module_contains_cube_exactly():
