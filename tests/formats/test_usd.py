@@ -8,6 +8,7 @@ import h5py
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from numpy.testing import assert_allclose
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdPhysics, Vt
 
 from penfree.cli import main
@@ -516,14 +517,34 @@ def test_sample_through_info_deform_verify_report(tmp_path):
     assert json.loads((tmp_path / "rep" / "report.json").read_text())["files"][0]["summary"]["n_steps"] == 11
 
 
-def test_sample_is_what_the_generator_writes(tmp_path):
+@pytest.fixture(scope="module")
+def usd_cloth():
     sys.path.insert(0, str(SAMPLES))
     try:
-        import usd_cloth
+        import usd_cloth as mod
     finally:
         sys.path.remove(str(SAMPLES))
+    return mod
+
+
+def test_sample_is_what_the_generator_writes(tmp_path, usd_cloth):
     usd_cloth.build(str(tmp_path / "again.usda"))
     assert (tmp_path / "again.usda").read_bytes() == SAMPLE.read_bytes()
+
+
+def test_sample_world_positions_match_the_generator(usd_cloth):
+    """Oracle for transforms and units: the rig's rotateZ(15 deg) then translate (0, 0, 45) cm, in metres."""
+    seq = read_sequence(SAMPLE)
+    a = np.radians(15.0)
+    R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    for k in range(usd_cloth.FRAMES):
+        local = usd_cloth.sheet(k).astype(np.float32).astype(np.float64)
+        expected = (local @ R.T + [0, 0, 45.0]) * 0.01
+        assert_allclose(seq.positions[k], expected, rtol=0, atol=1e-15)
+    d = json.loads(_run("info", SAMPLE, "--json").output)["usd"]
+    assert d["meters_per_unit"] == 0.01 and d["dt"] == 1 / 24 and d["time_codes"]["count"] == 12
+    assert {p["path"]: p["role"] for p in d["prims"]} == {
+        "/World/Rig/Cloth": "scene", "/World/Box": "obstacle", "/World/Ball": "obstacle"}
 
 
 # --- bad input ------------------------------------------------------------------------------
