@@ -24,7 +24,7 @@ AUTO_MODEL_RTOL = 0.05
 MODELS = ("translation", "rigid", "similarity", "affine")
 PROJECTIONS = ("none", "svd", "sym", "auto")
 
-#: Noise-aware rank cut-off of the fit (penfree.core.fit.significant_subspace):
+#: Noise-aware rank cut-off of the fit (penfree.core.fit.models.significant_subspace):
 #: a direction of C is kept only if the standard error of the slope D e it
 #: carries is at most this (dimensionless strain per step). Real per-step
 #: strains are ~1e-3..1e-2 and a slope error of 1e-2 moves sigma_min(I + tD)
@@ -53,7 +53,7 @@ PARALLEL_MIN_VERTICES = 16384
 #: recipe clamps into [margin, S_MAX]); per-frame motion never needs more.
 SVD_SMAX = 10.0
 
-#: Fast certificate (penfree.core.certificate.fast_margin_bound): rounding
+#: Fast certificate (penfree.core.fit.certificate.fast_margin_bound): rounding
 #: allowance c in  lambda_min >= computed - c * eps * (1 + ||sym D||_F).
 #: Covers forming D = A - I and sym(D) (entrywise relative error <= eps/2,
 #: Frobenius-bounded), LAPACK's backward error of the 3x3 symmetric

@@ -21,7 +21,7 @@ report.json key reference (schema ``penfree_report`` = 1; NaN and inf are writte
   - ``scene``: ``kind``, ``n_vertices``, ``n_frames``, ``n_steps``, ``thickness``,
     ``dtype``; ``deform_options``: the result file's attributes;
   - ``stats_source``: ``file`` (its ``stats/`` group) or ``computed``;
-  - ``summary``: `penfree.core.stats.summarize` output: ``n_steps``, ``n_steps_next``,
+  - ``summary``: `penfree.core.trust.stats.summarize` output: ``n_steps``, ``n_steps_next``,
     ``fit_ms_mean``, ``fit_ms_median``, ``hit_rate_gain_next``, ``hit_rate_gain_pred``
     (fractions),
     ``baseline`` / ``deformed`` blocks (``hit_rate_<t>``, ``k_any_<t>``,
@@ -37,11 +37,11 @@ report.json key reference (schema ``penfree_report`` = 1; NaN and inf are writte
   - ``worst_steps``: up to 10 rows {``frame``, ``target``, ``k_1pct_baseline``,
     ``k_1pct_deformed``, ``k_any_baseline``, ``k_any_deformed``,
     ``hit_rate_baseline``, ``hit_rate_deformed``, ``k_1pct_gain``};
-  - ``steps``: every per-step array of `penfree.core.stats.compute_stats` (except
+  - ``steps``: every per-step array of `penfree.core.trust.stats.compute_stats` (except
     the histograms) plus ``certificate_margin``, ``model``, ``projection``,
     ``time_fit_s``, as lists;
   - ``r_hist``: ``edges`` and pooled counts ``<t>_<s>`` over all steps;
-  - ``ladder``: null or `penfree.core.ladder.model_ladder` output without the per-step
+  - ``ladder``: null or `penfree.core.pipeline.ladder.model_ladder` output without the per-step
     arrays: ``models`` (``baseline``, the ladder, ``auto``, ``x_pred``: the unsafe
     ideal), ``n_steps``, ``n_steps_next``, ``rows`` (per model: ``fit_ms_mean``,
     ``fit_ms_median``, ``residual_next_rms``, ``residual_pred_rms``, ``k_1pct_next``,
@@ -61,12 +61,12 @@ import os
 import numpy as np
 
 from .._version import __version__
-from ._json import json_safe
+from ..formats._json import json_safe
 from ..constants import DEFAULT_CD_SHARE, DEFAULT_FRAME_MS
-from ..core.ladder import model_ladder
-from ..core.stats import R_HIST_EDGES, STARTS, TARGETS, compute_stats, stats_keys, summarize
+from ..core.pipeline.ladder import model_ladder
+from ..core.trust.stats import R_HIST_EDGES, STARTS, TARGETS, compute_stats, stats_keys, summarize
 from ..errors import InputError
-from .atomic import atomic_dir
+from ..formats.atomic import atomic_dir
 
 REPORT_SCHEMA = 1
 #: Rows of the worst-steps table.
@@ -149,7 +149,7 @@ def build_file_report(path, result, stats, *, ladder=None, cd_share=DEFAULT_CD_S
 
 def open_result(path):
     """Read a ``penfree deform`` output; InputError naming the file if it is not one."""
-    from .result import is_result_file, read_result
+    from ..formats.result import is_result_file, read_result
 
     path = os.fspath(path)
     if not os.path.isfile(path):

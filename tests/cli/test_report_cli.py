@@ -25,9 +25,9 @@ def _far_bounds(x, *, edges=None, faces=None, thickness=0.0, gamma=DEFAULT_GAMMA
 def bounds(monkeypatch):
     """The real trust_region_bounds once it exists, else the far-apart stand-in."""
     try:
-        importlib.import_module("penfree.core.trust_region")
+        importlib.import_module("penfree.core.trust.bounds")
     except ModuleNotFoundError:
-        monkeypatch.setitem(sys.modules, "penfree.core.trust_region",
+        monkeypatch.setitem(sys.modules, "penfree.core.trust.bounds",
                             types.SimpleNamespace(trust_region_bounds=_far_bounds))
 
 
@@ -90,7 +90,7 @@ def test_json_on_stdout_and_frames(result, tmp_path):
 
 
 def test_ladder_and_replay(result, tmp_path):
-    pytest.importorskip("penfree.core.step")
+    pytest.importorskip("penfree.core.fit.step")
     r = run(result, "-o", tmp_path / "rep", "--replay", "--no-plots", "--json")
     assert r.exit_code == 0, r.output
     f = json.loads(r.output)["files"][0]

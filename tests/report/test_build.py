@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from penfree.constants import DEFAULT_GAMMA
-from penfree.core.stats import compute_stats, stats_keys
+from penfree.core.trust.stats import compute_stats, stats_keys
 from penfree.errors import InputError, OutputExistsError
-from penfree.formats.report import (
+from penfree.report.build import (
     REPORT_SCHEMA,
     certificate_summary,
     load_report_json,
@@ -39,9 +39,9 @@ def _far_bounds(x, *, edges=None, faces=None, thickness=0.0, gamma=DEFAULT_GAMMA
 def bounds(monkeypatch):
     """The real trust_region_bounds once it exists, else the far-apart stand-in."""
     try:
-        importlib.import_module("penfree.core.trust_region")
+        importlib.import_module("penfree.core.trust.bounds")
     except ModuleNotFoundError:
-        monkeypatch.setitem(sys.modules, "penfree.core.trust_region",
+        monkeypatch.setitem(sys.modules, "penfree.core.trust.bounds",
                             types.SimpleNamespace(trust_region_bounds=_far_bounds))
 
 

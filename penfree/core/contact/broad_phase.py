@@ -34,9 +34,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ..errors import InputError
+from ...errors import InputError
 from .distance import edge_edge_sq, point_edge_sq, point_triangle_sq
-from .topology import as_positions, as_topology
+from ..topology import as_positions, as_topology
 
 #: A box covering more cells than this is "big" and tested by brute force
 #: (3 x 3 x 3 = 27 cells is the worst case of a box twice the cell size;

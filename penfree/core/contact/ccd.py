@@ -70,8 +70,8 @@ is rigorous for the Euclidean distance because it bounds a projection of F.
 
 import numpy as np
 
-from ..constants import CCD_MAX_EXACT, REDUCTION_CHUNKS
-from ..errors import InputError
+from ...constants import CCD_MAX_EXACT, REDUCTION_CHUNKS
+from ...errors import InputError
 from .ccd_exact import exact_edge_edge, exact_vertex_face
 from .ccd_kernels import BUDGET, CLOSE, SEPARATED, ccd_batch, ccd_batch_indexed
 

@@ -1,4 +1,4 @@
-"""Numba kernels of the conservative CCD (see `penfree.core.ccd` for the method).
+"""Numba kernels of the conservative CCD (see `penfree.core.contact.ccd` for the method).
 
 Every query is 4 points at t=0 and at t=1 moving linearly; the contact function
 
@@ -14,7 +14,7 @@ by a proven bound on the floating-point error of the corners, is farther than
 import numpy as np
 from numba import njit, prange
 
-from ..constants import (
+from ...constants import (
     CCD_ERR_ABS,
     CCD_ERR_REL,
     CCD_MAX_BOXES,

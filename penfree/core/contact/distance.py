@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ..errors import InputError
+from ...errors import InputError
 
 
 @njit(cache=True, inline="always")

@@ -3,7 +3,7 @@
 A closed segment [e0, e1] meets a closed triangle within distance h iff a point
 moving linearly from e0 to e1 comes within h of the (static) triangle, which is
 exactly a vertex-face CCD query; so these predicates inherit the guarantees
-of `penfree.core.ccd`: never a missed intersection, and with h = 0 (default
+of `penfree.core.contact.ccd`: never a missed intersection, and with h = 0 (default
 ``exact=True``) an exact answer, since the flagged queries are decided in
 rational arithmetic. Two closed triangles intersect (or come within h) iff an
 edge of one meets (comes within h of) the other: the intersection of two
@@ -13,7 +13,7 @@ closest points of two disjoint triangles include a point on an edge.
 
 import numpy as np
 
-from ..errors import InputError
+from ...errors import InputError
 from .ccd import SEPARATED, ccd_details
 
 __all__ = ["segments_triangles_intersect", "triangles_intersect"]

@@ -26,12 +26,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .. import constants as K
-from ..errors import InputError
-from . import fit as _fit
+from ... import constants as K
+from ...errors import InputError
+from . import models as _fit
 from .certificate import certified_margin, certify_map, fast_margin_bound
 from .projection import project
-from .selection_kernels import predict_kernel
+from .auto_kernels import predict_kernel
 from .step import StepResult
 
 _I3 = np.eye(3)

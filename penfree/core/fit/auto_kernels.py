@@ -1,4 +1,4 @@
-"""Numba kernels of the collision-aware model choice (`penfree.core.selection`).
+"""Numba kernels of the collision-aware model choice (`penfree.core.fit.auto`).
 
 `predict_kernel` evaluates one candidate map in a single pass over the vertices:
 the deformed position, its distance to the prediction and the predicted bound are
@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from .. import constants as K
-from .fit_kernels import _named
+from ... import constants as K
+from .kernels import _named
 
 
 def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, unbounded, r, n_chunks):

@@ -19,8 +19,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .. import constants as K
-from ..errors import InputError
+from ... import constants as K
+from ...errors import InputError
 
 
 def _check_A(A) -> np.ndarray:

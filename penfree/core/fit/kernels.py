@@ -1,6 +1,6 @@
 """Numba kernels of the fit stage (SPEC section 4): moments, centring, rank, applying the map.
 
-Pure functions over C-contiguous arrays; `penfree.core.fit` validates and converts
+Pure functions over C-contiguous arrays; `penfree.core.fit.models` validates and converts
 before calling them. The moment and apply kernels exist in a serial and a parallel
 build of the same source (same fixed chunks, same summation order, so the same bits).
 They take flat ``(3N,)`` views of the ``(N, 3)`` positions and loop over an unsigned
@@ -15,7 +15,7 @@ import types
 import numpy as np
 from numba import njit, prange
 
-from .. import constants as K
+from ... import constants as K
 
 #: Layout of the moment vector the kernel returns (offsets into it).
 _W, _SP, _SD, _SPP, _SDP, _SDD, _SW2, _NMOM = 0, 1, 4, 7, 13, 22, 23, 24

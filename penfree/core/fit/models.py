@@ -3,7 +3,7 @@
 One fused Numba pass reduces the two frames to a handful of moments; every
 model (translation, rigid, similarity, affine) is then fitted from those
 moments alone, so candidate maps cost no further pass over the vertices. The
-Numba kernels live in `penfree.core.fit_kernels`.
+Numba kernels live in `penfree.core.fit.kernels`.
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import constants as K
-from ..errors import InputError
-from .fit_kernels import _apply_kernel, _finish_kernel, _moments_kernel, _subspace_kernel
+from ... import constants as K
+from ...errors import InputError
+from .kernels import _apply_kernel, _finish_kernel, _moments_kernel, _subspace_kernel
 
 
 @dataclass(frozen=True)

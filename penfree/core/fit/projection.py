@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import constants as K
-from ..errors import InputError
+from ... import constants as K
+from ...errors import InputError
 from .certificate import certify_map
 
 _I3 = np.eye(3)

@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import constants as K
-from ..errors import CertificateError, InputError
-from . import fit as _fit
+from ... import constants as K
+from ...errors import CertificateError, InputError
+from . import models as _fit
 from .certificate import _fast_bound, certified_margin, certify
 from .projection import project
 

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..constants import MARGIN_GAP_RADIUS_FACTOR
-from ..errors import InputError
-from .step import fit_step
+from ...constants import MARGIN_GAP_RADIUS_FACTOR
+from ...errors import InputError
+from ..fit.step import fit_step
 
 #: verify_step lists violating pairs up to this many per round (all of them in practice).
 _ALL_PAIRS = 1 << 30
@@ -141,7 +141,7 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
     global map, which is certified.
     """
     t0 = time.perf_counter()
-    from .verify import verify_step  # the CCD stage; imported here to keep start-up light
+    from ..verify.path import verify_step  # the CCD stage; imported here to keep start-up light
 
     x = np.asarray(x)
     x_prev = np.asarray(x_prev)
@@ -200,7 +200,7 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
 def _thickness_margin(x, edges, faces, thickness):
     if thickness <= 0:
         return 0.0
-    from .trust_region import min_separation
+    from ..trust.bounds import min_separation
 
     radius = MARGIN_GAP_RADIUS_FACTOR * thickness
     d0 = float(min_separation(x, E=edges, F=faces, radius=radius))

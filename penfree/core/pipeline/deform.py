@@ -13,11 +13,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..constants import MARGIN_GAP_RADIUS_FACTOR
-from ..errors import CertificateError, InputError
-from .certificate import certify_map
-from .stats import query_radius, residual_summary
-from .step import fit_step
+from ...constants import MARGIN_GAP_RADIUS_FACTOR
+from ...errors import CertificateError, InputError
+from ..fit.certificate import certify_map
+from ..trust.stats import query_radius, residual_summary
+from ..fit.step import fit_step
 
 
 @dataclass
@@ -65,7 +65,7 @@ def step_margin(x, seq, thickness, margin, d0=None):
     if thickness <= 0 or seq.kind == "points":
         return 0.0, math.nan
     if d0 is None:
-        from .trust_region import min_separation
+        from ..trust.bounds import min_separation
 
         radius = MARGIN_GAP_RADIUS_FACTOR * thickness
         d0 = float(min_separation(x, E=seq.edges, F=seq.faces, radius=radius))
@@ -162,8 +162,8 @@ def deform_sequence(
                 "group": np.full((S, C), -1, dtype=np.int64), "rounds": np.zeros(S, dtype=np.int64)}
     select = model == "auto" and seq.kind != "points"
     if select:
-        from .selection import select_step
-        from .trust_region import scene_arrays, per_vertex_separation
+        from ..fit.auto import select_step
+        from ..trust.bounds import scene_arrays, per_vertex_separation
 
         _, E, F = scene_arrays(pos[0], seq.edges, seq.faces)
         table_rows = [None] * S

@@ -18,8 +18,8 @@ import time
 
 import numpy as np
 
-from ..constants import DEFAULT_GAMMA, DEFAULT_REPLAY_CAP
-from .stats import _mean, query_radius, ratio_stats, replay_passes, residual_summary
+from ...constants import DEFAULT_GAMMA, DEFAULT_REPLAY_CAP
+from ..trust.stats import _mean, query_radius, ratio_stats, replay_passes, residual_summary
 
 #: The ladder, cheapest first (SPEC section 4), then the automatic choice.
 LADDER_MODELS = ("translation", "rigid", "similarity", "affine", "auto")
@@ -83,7 +83,7 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
         ``bounds_fn(x (N, 3) float64, query_radius) -> (N,) float64``; default
         `trust_region_bounds` with this topology.
     fit_fn : callable, optional
-        Stand-in for `penfree.core.step.fit_step` (same signature and result fields).
+        Stand-in for `penfree.core.fit.step.fit_step` (same signature and result fields).
     components : (N,) int, optional
         Object labels for the optional ``"per-component"`` model (default: connected
         components of the topology). That model runs the CCD between objects every step.
@@ -118,13 +118,13 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
     step with a next frame, plus one for the baseline.
     """
     if fit_fn is None:
-        from .step import fit_step as fit_fn
+        from ..fit.step import fit_step as fit_fn
     positions = np.asarray(positions)
     frames = np.asarray(frames, dtype=np.int64)
     T, S = positions.shape[0], frames.shape[0]
     margins = np.zeros(S) if margins is None else np.asarray(margins, dtype=np.float64)
     if bounds_fn is None:
-        from .trust_region import trust_region_bounds
+        from ..trust.bounds import trust_region_bounds
 
         def bounds_fn(x, r_q):
             return trust_region_bounds(x, edges=edges, faces=faces, thickness=thickness, gamma=gamma,
@@ -137,8 +137,8 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
         labels = component_labels(positions.shape[1], edges, faces, components)
     select = "auto" in models and (edges is not None and len(edges) or faces is not None and len(faces))
     if select:
-        from .selection import select_step
-        from .trust_region import scene_arrays, per_vertex_separation
+        from ..fit.auto import select_step
+        from ..trust.bounds import scene_arrays, per_vertex_separation
 
         _, E_sel, F_sel = scene_arrays(positions[0], edges, faces)
     per = {m: {f: np.full(S, np.nan) for f in LADDER_FIGURES} for m in names}

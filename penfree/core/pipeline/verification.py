@@ -12,10 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..constants import DEFAULT_MAX_PAIRS
-from ..errors import InputError
-from .certificate import certify, fast_margin_bound
-from .verify import (
+from ...constants import DEFAULT_MAX_PAIRS
+from ...errors import InputError
+from ..fit.certificate import certify, fast_margin_bound
+from ..verify.path import (
     VerifyResult,
     _bodies,
     _Collector,
@@ -246,7 +246,7 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
     hold. Obstacles are held at the step's start frame (deform moves only the
     scene).
     """
-    from .pipeline import step_margin
+    from .deform import step_margin
 
     if mode not in MODES:
         raise InputError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
@@ -324,8 +324,8 @@ def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEF
     >>> rep.ok, rep.n_failed                             # doctest: +SKIP
     (True, 0)
     """
-    from ..formats import read_sequence
-    from ..formats.result import is_result_file, read_result
+    from ...formats import read_sequence
+    from ...formats.result import is_result_file, read_result
 
     if mode not in MODES:
         raise InputError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")

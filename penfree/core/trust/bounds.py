@@ -15,10 +15,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..constants import DEFAULT_GAMMA, DEFAULT_RADIUS_FRACTION, REDUCTION_CHUNKS
-from ..errors import InputError
-from .broad_phase import _box_arrays, _Plan
-from .topology import as_positions, as_topology, edges_from_faces, referenced_vertices
+from ...constants import DEFAULT_GAMMA, DEFAULT_RADIUS_FRACTION, REDUCTION_CHUNKS
+from ...errors import InputError
+from ..contact.broad_phase import _box_arrays, _Plan
+from ..topology import as_positions, as_topology, edges_from_faces, referenced_vertices
 
 #: Cap on the per-chunk partial minima, in float64 entries (32 MiB).
 _PARTIAL_ENTRIES_MAX = 1 << 22

@@ -36,11 +36,11 @@ import math
 
 import numpy as np
 
-from ..constants import (
+from ...constants import (
     DEFAULT_CD_SHARE, DEFAULT_FRAME_MS, DEFAULT_GAMMA, DEFAULT_REPLAY_CAP, K_PERCENTILE,
     R_HIST_BINS_PER_DECADE, R_HIST_DECADES,
 )
-from ..errors import InputError
+from ...errors import InputError
 
 STARTS = ("baseline", "deformed")
 TARGETS = ("next", "pred")
@@ -295,7 +295,7 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
         Cap on replay passes.
     bounds_fn : callable, optional
         ``bounds_fn(x (N, 3) float64, query_radius float) -> (N,) float64``; default
-        `penfree.core.trust_region.trust_region_bounds` with this topology.
+        `penfree.core.trust.bounds.trust_region_bounds` with this topology.
     progress : callable, optional
         Called once per finished step.
 
@@ -314,7 +314,7 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
         raise InputError("compute_stats needs a deform result, or positions with deformed= and frames=")
     positions, deformed, frames, edges, faces, thickness = _unpack(source, deformed, frames, edges, faces, thickness)
     if bounds_fn is None:
-        from .trust_region import trust_region_bounds
+        from .bounds import trust_region_bounds
 
         def bounds_fn(x, r_q):
             return trust_region_bounds(x, edges=edges, faces=faces, thickness=thickness, gamma=gamma,

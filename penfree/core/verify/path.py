@@ -8,7 +8,7 @@ One step is checked in two parts:
   when thickness is 0). The latter are the path hits that already hold at
   t = 0 (a static pair's box lies inside its swept box), re-checked statically;
 - path: every vertex-face and edge-edge pair (segments: edge-edge) whose
-  swept boxes overlap goes through the conservative CCD of `penfree.core.ccd`
+  swept boxes overlap goes through the conservative CCD of `penfree.core.contact.ccd`
   (no false negatives; exact for thickness 0), and the same between the
   scene and each obstacle moving linearly (not obstacles against each other).
 
@@ -29,16 +29,16 @@ from typing import Optional
 import numpy as np
 from numba import njit
 
-from ..constants import DEFAULT_MAX_PAIRS
-from ..errors import InputError
-from .broad_phase import (
+from ...constants import DEFAULT_MAX_PAIRS
+from ...errors import InputError
+from ..contact.broad_phase import (
     edge_edge_candidates,
     edge_edge_candidates_between,
     vertex_face_candidates,
     vertex_face_candidates_between,
 )
-from .ccd import SEPARATED, ccd_indexed
-from .topology import as_positions, as_topology, edges_from_faces
+from ..contact.ccd import SEPARATED, ccd_indexed
+from ..topology import as_positions, as_topology, edges_from_faces
 
 #: Candidate pairs handed to the narrow phase at once (bounds the per-block
 #: index and result arrays).
@@ -229,7 +229,7 @@ def _edge_face(col, kind, V, E, F, swap=False):
     Each edge becomes a point moving from its first to its second end point: the
     vertex-face broad phase over that swept point finds the edge-face candidates,
     and the vertex-face CCD against the static face is the exact segment-triangle
-    test (as in `penfree.core.intersection`).
+    test (as in `penfree.core.contact.intersection`).
     """
     if not len(E) or not len(F):
         return
@@ -348,14 +348,3 @@ def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=
         n_candidates=path.n_candidates, edges=scene.E if len(scene.E) else None,
     )
 
-
-_FILE_LEVEL = ("verify_affine_step", "verify_file", "verify_result", "verify_sequence")
-
-
-def __getattr__(name):
-    # sequence- and file-level verification live in verify_file (which imports this module)
-    if name in _FILE_LEVEL:
-        from . import verify_file
-
-        return getattr(verify_file, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

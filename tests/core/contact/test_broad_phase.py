@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from penfree.core import broad_phase as bp
-from penfree.core.broad_phase import (
+from penfree.core.contact import broad_phase as bp
+from penfree.core.contact.broad_phase import (
     edge_edge_candidates,
     edge_edge_candidates_between,
     edge_edge_candidates_between_brute,

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from penfree.core.ccd import SEPARATED, ccd_details
-from penfree.core.ccd_exact import exact_edge_edge, exact_vertex_face
+from penfree.core.contact.ccd import SEPARATED, ccd_details
+from penfree.core.contact.ccd_exact import exact_edge_edge, exact_vertex_face
 
 ROOT = Path(__file__).parents[2].parent / "shared" / "ccd-benchmark"
 pytestmark = pytest.mark.skipif(not ROOT.is_dir(), reason=f"CCD benchmark data not found at {ROOT}")

@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numba import njit
 
-from penfree.core.distance import (
+from penfree.core.contact.distance import (
     edge_edge_distance,
     edge_edge_sq,
     point_edge_distance,

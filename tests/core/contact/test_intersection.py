@@ -5,10 +5,11 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from penfree.core.intersection import segments_triangles_intersect, triangles_intersect
+from penfree.core.contact.intersection import segments_triangles_intersect, triangles_intersect
 from penfree.errors import InputError
 
-from test_ccd import _ee_sq, _pe_sq, _pt_sq  # exact Fraction distance oracles
+
+from oracles import ee_sq, pe_sq, pt_sq  # exact Fraction distance oracles
 
 T0 = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
 CASES = [
@@ -42,8 +43,8 @@ def _tri_tri_sq(a, b):
     if any(_pierces(A[i], A[(i + 1) % 3], B) or _pierces(B[i], B[(i + 1) % 3], A) for i in range(3)):
         return Fraction(0)
     return min(
-        min(_pt_sq(p, *B) for p in A), min(_pt_sq(p, *A) for p in B),
-        min(_ee_sq(A[i], A[(i + 1) % 3], B[j], B[(j + 1) % 3]) for i in range(3) for j in range(3)),
+        min(pt_sq(p, *B) for p in A), min(pt_sq(p, *A) for p in B),
+        min(ee_sq(A[i], A[(i + 1) % 3], B[j], B[(j + 1) % 3]) for i in range(3) for j in range(3)),
     )
 
 
@@ -58,7 +59,7 @@ def _pierces(e0, e1, T):
         return False
     s = s0 / (s0 - s1)
     p = [x + s * (y - x) for x, y in zip(e0, e1)]
-    return _pt_sq(p, *T) == 0
+    return pt_sq(p, *T) == 0
 
 
 def test_random_small_integer_triangles_against_exact_distance():
@@ -82,7 +83,7 @@ def test_segments_and_validation():
     assert segments_triangles_intersect(seg, tri).tolist() == [True, False]
     assert segments_triangles_intersect(seg, tri, 2.1).tolist() == [True, False]  # distance 1.5 sqrt(2)
     assert segments_triangles_intersect(seg, tri, 2.13).tolist() == [True, True]
-    assert _pe_sq([Fraction(0)] * 3, [Fraction(1), Fraction(0), Fraction(0)], [Fraction(2), Fraction(0), Fraction(0)]) == 1
+    assert pe_sq([Fraction(0)] * 3, [Fraction(1), Fraction(0), Fraction(0)], [Fraction(2), Fraction(0), Fraction(0)]) == 1
     with pytest.raises(InputError, match=r"\(Q, 3, 3\)"):
         triangles_intersect(np.zeros((2, 2, 3)), np.zeros((2, 3, 3)))
     with pytest.raises(InputError, match="same number"):

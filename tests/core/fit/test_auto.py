@@ -7,16 +7,16 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from penfree import constants as K
-from penfree.core import fit as _fit
-from penfree.core.certificate import certify
-from penfree.core.projection import project_sym
-from penfree.core.selection import (
+from penfree.core.fit import models as _fit
+from penfree.core.fit.certificate import certify
+from penfree.core.fit.projection import project_sym
+from penfree.core.fit.auto import (
     Candidate, candidate_maps, choose, predict_map_passes, predict_passes, predicted_bounds, select_step,
     sigma_min_lower_bound,
 )
-from penfree.core.selection_kernels import predict_kernel
-from penfree.core.stats import ratio_stats
-from penfree.core.trust_region import scene_arrays, per_vertex_separation, trust_region_bounds
+from penfree.core.fit.auto_kernels import predict_kernel
+from penfree.core.trust.stats import ratio_stats
+from penfree.core.trust.bounds import scene_arrays, per_vertex_separation, trust_region_bounds
 from penfree.errors import InputError
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from penfree.core.certificate import (
+from penfree.core.fit.certificate import (
     certificate_polynomial,
     certified_margin,
     certify,

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from penfree.core import fit as F
+from penfree.core.fit import models as F
 from penfree.errors import InputError
 
 from _geom import rot, prev_for

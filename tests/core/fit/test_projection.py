@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from penfree import constants as K
-from penfree.core.certificate import certify, fast_margin_bound
-from penfree.core.projection import is_certified, project, project_svd, project_sym
+from penfree.core.fit.certificate import certify, fast_margin_bound
+from penfree.core.fit.projection import is_certified, project, project_svd, project_sym
 from penfree.errors import InputError
 
 from _geom import rot

@@ -7,9 +7,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import penfree
-from penfree.core.certificate import certify
-from penfree.core.fit import fit_model, fit_moments, residual_gain
-from penfree.core.step import StepResult, fit_step
+from penfree.core.fit.certificate import certify
+from penfree.core.fit.models import fit_model, fit_moments, residual_gain
+from penfree.core.fit.step import StepResult, fit_step
 from penfree.errors import InputError
 
 from _geom import rot, prev_for

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from penfree.core.certificate import certify
-from penfree.core.components import component_labels, per_component_step
-from penfree.core.verify import verify_step
+from penfree.core.fit.certificate import certify
+from penfree.core.pipeline.components import component_labels, per_component_step
+from penfree.core.verify.path import verify_step
 
 
 def two_rods(n=20, gap=0.2, dz=0.0):

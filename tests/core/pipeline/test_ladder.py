@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from penfree.core.ladder import LADDER_FIGURES, LADDER_MODELS, model_ladder
+from penfree.core.pipeline.ladder import LADDER_FIGURES, LADDER_MODELS, model_ladder
 
 
 def _affine_motion(rng, T=5, n=30):
@@ -92,7 +92,7 @@ def test_margin_one_means_translation(rng):
 
 
 def test_ladder_with_fit_step(rng):
-    pytest.importorskip("penfree.core.step")
+    pytest.importorskip("penfree.core.fit.step")
     pos = _affine_motion(rng)
     frames = np.arange(1, pos.shape[0])
     lad = model_ladder(pos, frames, bounds_fn=_far_bounds)

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from penfree.core.distance import edge_edge_distance, point_triangle_distance
+from penfree.core.contact.distance import edge_edge_distance, point_triangle_distance
 from penfree.core.topology import edges_from_faces
-from penfree.core.trust_region import min_separation, trust_region_bounds
+from penfree.core.trust.bounds import min_separation, trust_region_bounds
 from penfree.errors import InputError
 
 GAMMA = 0.45

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from penfree.constants import DEFAULT_GAMMA
-from penfree.core.stats import (
+from penfree.core.trust.stats import (
     QUANTILES,
     R_HIST_EDGES,
     compute_stats,
@@ -384,7 +384,7 @@ def _cloth_scene(rng, T=4, m=4):
 
 @pytest.mark.parametrize("kind", ["rods", "cloth"])
 def test_compute_stats_default_bounds_match_oracle(rng, kind):
-    pytest.importorskip("penfree.core.trust_region")
+    pytest.importorskip("penfree.core.trust.bounds")
     if kind == "rods":
         pos, topo = _rod_scene(rng)
         kw = {"edges": topo}

@@ -8,10 +8,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from penfree.core.ccd_exact import exact_edge_edge, exact_vertex_face
-from penfree.core.verify import verify_affine_step, verify_step
+from penfree.core.contact.ccd_exact import exact_edge_edge, exact_vertex_face
+from penfree.core.pipeline.verification import verify_affine_step
+from penfree.core.verify.path import verify_step
 from penfree.errors import InputError
-from test_ccd import exact_dist_sq  # exact Fraction distance at a rational time
+
+from oracles import exact_dist_sq  # exact Fraction distance at a rational time
 
 
 def grid(n, z=0.0, shift=(0.0, 0.0)):
@@ -253,7 +255,7 @@ def test_affine_fast_path_refuses_what_it_cannot_prove():
 
 def test_verify_sequence_with_moving_obstacle():
     from penfree import Obstacle, Sequence
-    from penfree.core.verify import verify_sequence
+    from penfree.core.pipeline.verification import verify_sequence
 
     V, F = grid(3, 1.0)
     floor = np.array([[-5, -5, 0], [5, -5, 0], [5, 5, 0], [-5, 5, 0.0]])
@@ -273,7 +275,7 @@ def test_verify_sequence_with_moving_obstacle():
 
 def test_sequence_rechecks_start_intersections_after_a_failed_step():
     from penfree import Sequence
-    from penfree.core.verify import verify_sequence
+    from penfree.core.pipeline.verification import verify_sequence
 
     V, F = two_sheets()
     seg = np.array([[1.5, 1.6, -1.0], [1.5, 1.6, 2.0]])  # pierces both sheets in every frame
