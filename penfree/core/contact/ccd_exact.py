@@ -2,7 +2,7 @@
 
 The float64 inputs are exact dyadic rationals, so the question "do the closed
 primitives touch at some t in [0, t_max]?" has an exact answer, decided here
-with `fractions.Fraction` polynomials in t (degree <= 6):
+with `fractions.Fraction` polynomials in t (degree <= 6, `penfree.core.polynomial`):
 
 - vertex-face: contacts happen at roots of the coplanarity cubic
   c(t) = det[f1 - f0, f2 - f0, p - f0]. If c is not identically 0, each root r
@@ -28,97 +28,7 @@ collapsing to segments) are handled, not approximated.
 
 from fractions import Fraction
 
-# --- polynomials: lists of Fraction coefficients, lowest degree first -------------
-
-
-def _trim(p):
-    p = list(p)
-    while p and p[-1] == 0:
-        p.pop()
-    return p
-
-
-def _add(p, q):
-    n = max(len(p), len(q))
-    return _trim([(p[i] if i < len(p) else 0) + (q[i] if i < len(q) else 0) for i in range(n)])
-
-
-def _sub(p, q):
-    return _add(p, [-c for c in q])
-
-
-def _mul(p, q):
-    if not p or not q:
-        return []
-    out = [Fraction(0)] * (len(p) + len(q) - 1)
-    for i, a in enumerate(p):
-        if a:
-            for j, b in enumerate(q):
-                out[i + j] += a * b
-    return _trim(out)
-
-
-def _eval(p, x):
-    acc = Fraction(0)
-    for c in reversed(p):
-        acc = acc * x + c
-    return acc
-
-
-def _deriv(p):
-    return _trim([i * p[i] for i in range(1, len(p))])
-
-
-def _divmod(p, q):
-    p = list(p)
-    quo = [Fraction(0)] * max(1, len(p) - len(q) + 1)
-    while len(p) >= len(q) and p:
-        k = len(p) - len(q)
-        f = p[-1] / q[-1]
-        quo[k] = f
-        for i, c in enumerate(q):
-            p[i + k] -= f * c
-        p = _trim(p)
-    return _trim(quo), p
-
-
-def _gcd(p, q):
-    p, q = _trim(p), _trim(q)
-    while q:
-        p, q = q, _divmod(p, q)[1]
-    if not p:
-        return []
-    lead = p[-1]
-    return [c / lead for c in p]
-
-
-def _squarefree(p):
-    g = _gcd(p, _deriv(p))
-    return _divmod(p, g)[0] if len(g) > 1 else p
-
-
-def _sign(x):
-    return (x > 0) - (x < 0)
-
-
-def _sturm(p):
-    seq = [p, _deriv(p)]
-    while len(seq[-1]) > 1:
-        r = _divmod(seq[-2], seq[-1])[1]
-        if not r:
-            break
-        seq.append([-c for c in r])
-    return seq
-
-
-def _variations(seq, x):
-    signs = [s for s in (_sign(_eval(p, x)) for p in seq) if s]
-    return sum(1 for a, b in zip(signs, signs[1:]) if a != b)
-
-
-def _count(seq, a, b):
-    """Distinct roots in (a, b] of a square-free seq[0]."""
-    return _variations(seq, a) - _variations(seq, b)
+from ..polynomial import add, count_roots, divmod_poly, evaluate, gcd, mul, sign, squarefree, sturm, sub, trim
 
 
 # --- roots in [0, t_max] -----------------------------------------------------------
@@ -134,25 +44,25 @@ class _Root:
 
     def sign(self, s):
         """Exact sign of the polynomial s at r."""
-        s = _trim(s)
+        s = trim(s)
         if not s:
             return 0
         if self.lo == self.hi:
-            return _sign(_eval(s, self.lo))
-        g = _gcd(self.q, s)
-        if len(g) > 1 and _sign(_eval(g, self.lo)) * _sign(_eval(g, self.hi)) < 0:
+            return sign(evaluate(s, self.lo))
+        g = gcd(self.q, s)
+        if len(g) > 1 and sign(evaluate(g, self.lo)) * sign(evaluate(g, self.hi)) < 0:
             return 0
-        s_seq = _sturm(_squarefree(s))
+        s_seq = sturm(squarefree(s))
         while True:
             lo, hi = self.lo, self.hi
-            if _eval(s, lo) != 0 and _eval(s, hi) != 0 and _count(s_seq, lo, hi) == 0:
-                return _sign(_eval(s, (lo + hi) / 2))
+            if evaluate(s, lo) != 0 and evaluate(s, hi) != 0 and count_roots(s_seq, lo, hi) == 0:
+                return sign(evaluate(s, (lo + hi) / 2))
             mid = (lo + hi) / 2
-            qm = _eval(self.q, mid)
+            qm = evaluate(self.q, mid)
             if qm == 0:
                 self.lo = self.hi = mid
-                return _sign(_eval(s, mid))
-            if _sign(qm) == _sign(_eval(self.q, lo)):
+                return sign(evaluate(s, mid))
+            if sign(qm) == sign(evaluate(self.q, lo)):
                 self.lo = mid
             else:
                 self.hi = mid
@@ -160,21 +70,21 @@ class _Root:
 
 def _roots(p, t_max):
     """All real roots of p (not identically 0) in [0, t_max], as `_Root`s."""
-    q = _squarefree(_trim(p))
+    q = squarefree(trim(p))
     out = []
     if len(q) <= 1:
         return out
     for end in (Fraction(0), t_max):
-        if _eval(q, end) == 0:
+        if evaluate(q, end) == 0:
             out.append(_Root(q, end, end))
-            q = _divmod(q, [-end, Fraction(1)])[0]  # deflate: q stays square-free
+            q = divmod_poly(q, [-end, Fraction(1)])[0]  # deflate: q stays square-free
     if len(q) <= 1:
         return out
-    seq = _sturm(q)
+    seq = sturm(q)
     stack = [(Fraction(0), t_max)]
     while stack:
         a, b = stack.pop()
-        n = _count(seq, a, b)
+        n = count_roots(seq, a, b)
         if n == 0:
             continue
         if n == 1:
@@ -183,7 +93,7 @@ def _roots(p, t_max):
         k = 2
         while True:  # split at a point that is not a root (q has <= 6 roots)
             m = a + (b - a) / 2 + (b - a) / (2 ** (k + 2)) * (k - 2)
-            if _eval(q, m) != 0:
+            if evaluate(q, m) != 0:
                 break
             k += 1
         stack += [(a, m), (m, b)]
@@ -195,22 +105,22 @@ def _roots(p, t_max):
 
 def _vec(x0, x1):
     """Point x0 + t (x1 - x0) as 3 polynomials."""
-    return [_trim([Fraction(a), Fraction(b) - Fraction(a)]) for a, b in zip(x0, x1)]
+    return [trim([Fraction(a), Fraction(b) - Fraction(a)]) for a, b in zip(x0, x1)]
 
 
 def _vsub(a, b):
-    return [_sub(x, y) for x, y in zip(a, b)]
+    return [sub(x, y) for x, y in zip(a, b)]
 
 
 def _dot(a, b):
-    return _add(_add(_mul(a[0], b[0]), _mul(a[1], b[1])), _mul(a[2], b[2]))
+    return add(add(mul(a[0], b[0]), mul(a[1], b[1])), mul(a[2], b[2]))
 
 
 def _cross(a, b):
     return [
-        _sub(_mul(a[1], b[2]), _mul(a[2], b[1])),
-        _sub(_mul(a[2], b[0]), _mul(a[0], b[2])),
-        _sub(_mul(a[0], b[1]), _mul(a[1], b[0])),
+        sub(mul(a[1], b[2]), mul(a[2], b[1])),
+        sub(mul(a[2], b[0]), mul(a[0], b[2])),
+        sub(mul(a[0], b[1]), mul(a[1], b[0])),
     ]
 
 
@@ -228,7 +138,7 @@ def _on_segment(r, p, a, b):
     if any(r.sign(c) != 0 for c in _cross(ap, ab)):
         return False
     d = _dot(ap, ab)
-    return r.sign(d) >= 0 and r.sign(_sub(L, d)) >= 0
+    return r.sign(d) >= 0 and r.sign(sub(L, d)) >= 0
 
 
 def _in_triangle(r, p, f0, f1, f2):
@@ -253,7 +163,7 @@ def _segments_meet(r, a0, a1, b0, b1):
         )
     mm = _dot(m, m)
     for s in (_dot(_cross(w, db), m), _dot(_cross(w, da), m)):
-        if r.sign(s) < 0 or r.sign(_sub(mm, s)) < 0:
+        if r.sign(s) < 0 or r.sign(sub(mm, s)) < 0:
             return False
     return True
 
@@ -279,7 +189,7 @@ def _point_edge(p, a, b, t_max):
         return _on_segment(_at_zero(t_max), p, a, b) or _point_point(p, a, t_max) or _point_point(p, b, t_max)
     g = nonzero[0]
     for c in nonzero[1:]:
-        g = _gcd(g, c)
+        g = gcd(g, c)
     return any(_on_segment(r, p, a, b) for r in _roots(g, t_max))
 
 

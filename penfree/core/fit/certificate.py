@@ -21,6 +21,7 @@ from numba import njit
 
 from ... import constants as K
 from ...errors import InputError
+from ..polynomial import add, count_roots_01, mul, sub, trim
 
 
 def _check_A(A) -> np.ndarray:
@@ -94,42 +95,18 @@ def _fast_bound_kernel(A, allowance):
     return min(1.0, 1.0 + lam_min) - allowance * (1.0 + np.sqrt(np.sum(S * S)))
 
 
-# --- exact polynomial arithmetic over the integers (coefficients low order first)
-
-
-def _trim(p):
-    while len(p) > 1 and p[-1] == 0:
-        p = p[:-1]
-    return p
-
-
-def _add(p, q):
-    n = max(len(p), len(q))
-    return _trim([(p[i] if i < len(p) else 0) + (q[i] if i < len(q) else 0) for i in range(n)])
-
-
-def _mul(p, q):
-    r = [0] * (len(p) + len(q) - 1)
-    for i, a in enumerate(p):
-        if a:
-            for j, b in enumerate(q):
-                r[i + j] += a * b
-    return _trim(r)
-
-
-def _neg(p):
-    return [-a for a in p]
+# --- the certificate polynomial over the integers (coefficients low order first)
 
 
 def _det3(M):
     """Determinant of a 3x3 matrix of polynomials (cofactor expansion)."""
     def minor(i, j, k, l):
-        return _add(_mul(M[i][k], M[j][l]), _neg(_mul(M[i][l], M[j][k])))
+        return sub(mul(M[i][k], M[j][l]), mul(M[i][l], M[j][k]))
 
-    t0 = _mul(M[0][0], minor(1, 2, 1, 2))
-    t1 = _mul(M[0][1], minor(1, 2, 0, 2))
-    t2 = _mul(M[0][2], minor(1, 2, 0, 1))
-    return _add(_add(t0, _neg(t1)), t2)
+    t0 = mul(M[0][0], minor(1, 2, 1, 2))
+    t1 = mul(M[0][1], minor(1, 2, 0, 2))
+    t2 = mul(M[0][2], minor(1, 2, 0, 1))
+    return add(sub(t0, t1), t2)
 
 
 def certificate_polynomial(A, margin: float = 0.0) -> list:
@@ -147,7 +124,7 @@ def certificate_polynomial(A, margin: float = 0.0) -> list:
     # L * M(t) = L I + t Dn with Dn = L (A - I): exact integers.
     LM = [[[L if i == j else 0, (num - (den if i == j else 0)) * (L // den)]
            for j, (num, den) in enumerate(row)] for i, row in enumerate(ratios)]
-    LM = [[_trim(e) for e in row] for row in LM]
+    LM = [[trim(e) for e in row] for row in LM]
     if m == 0.0:
         return _det3(LM)
     mn, md = m.as_integer_ratio()
@@ -155,83 +132,14 @@ def certificate_polynomial(A, margin: float = 0.0) -> list:
     N = [[None] * 3 for _ in range(3)]
     for i in range(3):
         for j in range(3):
-            s = [0]
+            s = []
             for k in range(3):
-                s = _add(s, _mul(LM[k][i], LM[k][j]))
+                s = add(s, mul(LM[k][i], LM[k][j]))
             s = [md * md * a for a in s]
             if i == j:
-                s = _add(s, [-(L * L * mn * mn)])
+                s = add(s, [-(L * L * mn * mn)])
             N[i][j] = s
     return _det3(N)
-
-
-def _prem_pos(a, b):
-    """A positive multiple of the remainder of `a` divided by `b` (exact, integers)."""
-    lb = b[-1]
-    sb = 1 if lb > 0 else -1
-    alb = abs(lb)
-    r = list(a)
-    db = len(b) - 1
-    while len(r) - 1 >= db and any(r):
-        k = len(r) - 1 - db
-        lr = r[-1]
-        # |lb| r - sign(lb) lr x^k b: leading terms cancel, multiplier |lb| > 0.
-        r = [alb * c for c in r]
-        for i, c in enumerate(b):
-            r[i + k] -= sb * lr * c
-        r = _trim(r[:-1]) if len(r) > 1 else [0]
-    return _trim(r)
-
-
-def _primitive(p):
-    g = 0
-    for a in p:
-        g = math.gcd(g, a)
-    return [a // g for a in p] if g > 1 else p
-
-
-def _variations(values):
-    signs = [v > 0 for v in values if v != 0]
-    return sum(1 for a, b in zip(signs, signs[1:]) if a != b)
-
-
-def count_roots_01(p) -> int:
-    """Number of distinct real roots of the integer polynomial `p` in the closed ``[0, 1]``.
-
-    Sturm's theorem on ``p, p', -rem, ...``; repeated roots are counted once
-    (the chain ends at ``gcd(p, p')``, a common factor that does not change
-    the sign variations). Endpoints are tested directly. The zero polynomial
-    raises ValueError.
-    """
-    p = _trim(list(p))
-    if not any(p):
-        raise ValueError("the zero polynomial has infinitely many roots")
-    # Sturm needs non-roots at the ends: count endpoint roots directly and
-    # divide them out exactly (by t, and by t - 1 with synthetic division).
-    n_end = 0
-    if p[0] == 0:
-        n_end += 1
-        while p[0] == 0:
-            p = p[1:]
-    if sum(p) == 0:
-        n_end += 1
-        while len(p) > 1 and sum(p) == 0:
-            q, acc = [], 0
-            for a in reversed(p[1:]):
-                acc += a
-                q.append(acc)
-            p = q[::-1]
-    if len(p) == 1:
-        return n_end
-    chain = [_primitive(p), _primitive(_trim([i * a for i, a in enumerate(p)][1:]))]
-    while len(chain[-1]) > 1:
-        r = _prem_pos(chain[-2], chain[-1])
-        if not any(r):
-            break
-        chain.append(_primitive(_neg(r)))
-    v0 = _variations([q[0] for q in chain])
-    v1 = _variations([sum(q) for q in chain])
-    return n_end + (v0 - v1)
 
 
 def certify(A, margin: float = 0.0) -> bool:

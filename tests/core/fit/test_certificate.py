@@ -10,7 +10,6 @@ from penfree.core.fit.certificate import (
     certificate_polynomial,
     certified_margin,
     certify,
-    count_roots_01,
     fast_margin_bound,
 )
 from penfree.errors import InputError
@@ -37,60 +36,7 @@ def refined_min(A):
     return min(float(s.min()), float(r.fun))
 
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(20261121)
-
-
-# --- Sturm root counting against polynomials with known rational roots ------------
-
-
-def poly_from_roots(roots, lead=1):
-    p = [lead]
-    for r in roots:
-        r = Fraction(r)
-        f = [-r.numerator, r.denominator]  # den * t - num
-        q = [0] * (len(p) + 1)
-        for i, a in enumerate(p):
-            q[i] += a * f[0]
-            q[i + 1] += a * f[1]
-        p = q
-    return p
-
-
-@pytest.mark.parametrize(
-    "roots, lead, expected",
-    [
-        ([], 5, 0),
-        ([Fraction(1, 2)], 1, 1),
-        ([Fraction(1, 2), Fraction(1, 2)], 1, 1),  # double root touches zero, no sign change
-        ([Fraction(1, 3)] * 3 + [Fraction(2, 3)] * 2, -7, 2),
-        ([0], 1, 1),
-        ([1], 1, 1),
-        ([0, 0, 1, 1, 1], 3, 2),
-        ([-1, 2, Fraction(3, 2)], 1, 0),
-        ([Fraction(-1, 10**30), Fraction(10**30 + 1, 10**30)], 1, 0),  # just outside
-        ([Fraction(1, 10**30), Fraction(10**30 - 1, 10**30)], 1, 2),  # just inside
-    ],
-    ids=["constant", "simple", "double", "triple-and-double", "at-0", "at-1",
-         "multiple-at-ends", "outside", "just-outside", "just-inside"],
-)
-def test_count_roots_named(roots, lead, expected):
-    assert count_roots_01(poly_from_roots(roots, lead)) == expected
-
-
-def test_count_roots_random(rng):
-    for _ in range(200):
-        k = int(rng.integers(0, 7))
-        roots = [Fraction(int(rng.integers(-20, 41)), 20) for _ in range(k)]  # in [-1, 2]
-        p = poly_from_roots(roots, int(rng.choice([-3, -1, 1, 2])))
-        p = p + [0] * int(rng.integers(0, 2))  # a zero leading term must be harmless
-        assert count_roots_01(p) == len({r for r in roots if 0 <= r <= 1})
-
-
-def test_zero_polynomial_raises():
-    with pytest.raises(ValueError):
-        count_roots_01([0, 0])
+RNG_SEED = 20261121  # seed of the shared `rng` fixture (tests/conftest.py)
 
 
 # --- the polynomial itself is exact --------------------------------------------------
