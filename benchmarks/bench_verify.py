@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 from penfree.core.verify.path import verify_step
-from penfree.core.pipeline.verification import verify_affine_step
+from penfree.core.verify.affine import verify_affine_step
 
 
 def rods(n, regime):

@@ -1,10 +1,79 @@
-"""Test oracles shared across test modules: exact distances in rational arithmetic.
+"""Test oracles shared across test modules: brute-force broad phase and exact distances.
 
 Slow and obviously right, never used by penfree itself. Importable by name because
 tests/conftest.py puts tests/ on sys.path.
 """
 
 from fractions import Fraction
+
+import numpy as np
+
+from penfree.core.topology import as_positions, as_topology
+
+
+# --- broad phase: O(n^2) box overlap in numpy ------------------------------------------
+
+
+def _brute(loA, hiA, TA, loB, hiB, TB, self_query):
+    rows = []
+    for s in range(0, loA.shape[0], 512):
+        ov = np.all((loA[s:s + 512, None, :] <= hiB[None]) & (loB[None] <= hiA[s:s + 512, None, :]), axis=2)
+        for a in range(TA.shape[1]):
+            for b in range(TB.shape[1]):
+                ov &= TA[s:s + 512, a, None] != TB[None, :, b]
+        if self_query:
+            ov &= np.arange(s, s + ov.shape[0])[:, None] < np.arange(loB.shape[0])[None]
+        i, j = np.nonzero(ov)
+        rows.append(np.stack([i + s, j], axis=1))
+    if not rows:
+        return np.zeros((0, 2), dtype=np.int64)
+    return np.concatenate(rows).astype(np.int64)
+
+
+def _motion(V_t0, V_t1, inflation):
+    return as_positions(V_t0, "V_t0"), as_positions(V_t1, "V_t1"), float(inflation)
+
+
+def _np_boxes(V_t0, V_t1, T, inflation):
+    lo = np.minimum(V_t0[T], V_t1[T]).min(axis=1) - inflation
+    hi = np.maximum(V_t0[T], V_t1[T]).max(axis=1) + inflation
+    return lo, hi
+
+
+def edge_edge_candidates_brute(V_t0, V_t1, E, inflation=0.0) -> np.ndarray:
+    """O(M^2) numpy oracle of `edge_edge_candidates`."""
+    V_t0, V_t1, inflation = _motion(V_t0, V_t1, inflation)
+    E = as_topology(E, 2, V_t0.shape[0], "E")
+    lo, hi = _np_boxes(V_t0, V_t1, E, inflation)
+    return _brute(lo, hi, E, lo, hi, E, True)
+
+
+def edge_edge_candidates_between_brute(V_t0, V_t1, EA, EB, inflation=0.0) -> np.ndarray:
+    """O(|EA| |EB|) numpy oracle of `edge_edge_candidates_between`."""
+    V_t0, V_t1, inflation = _motion(V_t0, V_t1, inflation)
+    EA = as_topology(EA, 2, V_t0.shape[0], "EA")
+    EB = as_topology(EB, 2, V_t0.shape[0], "EB")
+    return _brute(*_np_boxes(V_t0, V_t1, EA, inflation), EA,
+                  *_np_boxes(V_t0, V_t1, EB, inflation), EB, False)
+
+
+def vertex_face_candidates_brute(V_t0, V_t1, F, inflation=0.0, vertices=None) -> np.ndarray:
+    """O(n M) numpy oracle of `vertex_face_candidates`."""
+    V_t0, V_t1, inflation = _motion(V_t0, V_t1, inflation)
+    F = as_topology(F, 3, V_t0.shape[0], "F")
+    n = V_t0.shape[0]
+    Q = np.arange(n, dtype=np.int64) if vertices is None else np.unique(np.asarray(vertices, dtype=np.int64))
+    Q = np.ascontiguousarray(Q[:, None])
+    pairs = _brute(*_np_boxes(V_t0, V_t1, Q, inflation), Q,
+                   *_np_boxes(V_t0, V_t1, F, inflation), F, False)
+    pairs[:, 0] = Q[pairs[:, 0], 0]
+    return pairs
+
+
+def vertex_face_candidates_between_brute(V_t0, V_t1, vertices, F, inflation=0.0) -> np.ndarray:
+    """O(n M) numpy oracle of `vertex_face_candidates_between`."""
+    assert vertices is not None
+    return vertex_face_candidates_brute(V_t0, V_t1, F, inflation, vertices)
 
 
 # --- exact squared distances (oracle), Fraction arithmetic ----------------------------

@@ -102,7 +102,7 @@ def _moments_py(x_prev, x, w, use_w, n_chunks):
 # The same source compiled twice: a parallel region costs tens of microseconds
 # (far more on a loaded machine), so small inputs run the chunks serially. The
 # choice depends on N only, never on the thread count.
-def _named(fn, name):
+def cache_variant(fn, name):
     # Numba's on-disk cache is keyed by the function's qualified name; give
     # each compiled variant its own, so the serial and parallel builds never
     # share a cache entry.
@@ -116,9 +116,9 @@ def _named(fn, name):
 #: flag that assumes finite values: NaN/Inf inputs must still poison the sums.
 _FIT_FASTMATH = {"reassoc", "contract"}
 
-_moments_serial = njit(cache=True, fastmath=_FIT_FASTMATH)(_named(_moments_py, "_moments_serial"))
+_moments_serial = njit(cache=True, fastmath=_FIT_FASTMATH)(cache_variant(_moments_py, "_moments_serial"))
 _moments_parallel = njit(cache=True, parallel=True, fastmath=_FIT_FASTMATH)(
-    _named(_moments_py, "_moments_parallel"))
+    cache_variant(_moments_py, "_moments_parallel"))
 
 
 def _moments_kernel(x_prev, x, w, use_w, n_chunks):
@@ -250,8 +250,8 @@ def _apply_py(x_prev, x, D, u, c, out, evaluate, out32, n_chunks):
     return res
 
 
-_apply_serial = njit(cache=True, fastmath=_FIT_FASTMATH)(_named(_apply_py, "_apply_serial"))
-_apply_parallel = njit(cache=True, parallel=True, fastmath=_FIT_FASTMATH)(_named(_apply_py, "_apply_parallel"))
+_apply_serial = njit(cache=True, fastmath=_FIT_FASTMATH)(cache_variant(_apply_py, "_apply_serial"))
+_apply_parallel = njit(cache=True, parallel=True, fastmath=_FIT_FASTMATH)(cache_variant(_apply_py, "_apply_parallel"))
 
 
 def _apply_kernel(x_prev, x, D, u, c, out, evaluate, n_chunks):

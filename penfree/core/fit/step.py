@@ -14,7 +14,7 @@ import numpy as np
 from ... import constants as K
 from ...errors import CertificateError, InputError
 from . import models as _fit
-from .certificate import _fast_bound, certified_margin, certify
+from .certificate import certified_margin, certify_map, fast_margin_bound
 from .projection import project
 
 
@@ -89,12 +89,12 @@ def _certify_A(D, margin):
     """
     A = _I3 + D
     D = A - _I3
-    fb = _fast_bound(A)
+    if not certify_map(A, margin):  # the one gate decides; below only which test proved it
+        return A, D, math.nan, ""
+    fb = fast_margin_bound(A)
     if fb > margin:
         return A, D, fb, "fast"
-    if certify(A, margin):
-        return A, D, certified_margin(A, margin, exact_known=True), "exact"
-    return A, D, math.nan, ""
+    return A, D, certified_margin(A, margin, exact_known=True), "exact"
 
 
 def fit_step(x_prev, x, *, weights=None, model="affine", projection="auto", margin=0.0,

@@ -17,8 +17,8 @@ import numpy as np
 
 from ...constants import DEFAULT_GAMMA, DEFAULT_RADIUS_FRACTION, REDUCTION_CHUNKS
 from ...errors import InputError
-from ..contact.broad_phase import _box_arrays, _Plan
-from ..topology import as_positions, as_topology, edges_from_faces, referenced_vertices
+from ..contact.broad_phase import fold_min_sq
+from ..topology import as_positions, as_topology, referenced_vertices, scene_edges
 
 #: Cap on the per-chunk partial minima, in float64 entries (32 MiB).
 _PARTIAL_ENTRIES_MAX = 1 << 22
@@ -36,14 +36,9 @@ def scene_arrays(x, edges, faces):
     n = x.shape[0]
     E = as_topology(edges, 2, n, "edges")
     F = as_topology(faces, 3, n, "faces")
-    if F.shape[0]:
-        # Triangle scene: the edge-edge terms run over the edges of the faces
-        # (and any extra segments given alongside).
-        FE = edges_from_faces(F)
-        E = FE if not E.shape[0] else np.unique(np.concatenate([FE, np.sort(E, axis=1)]), axis=0)
-    # A segment (i, i) has no extent and is no primitive.
-    E = np.ascontiguousarray(E[E[:, 0] != E[:, 1]])
-    return x, E, F
+    # Triangle scene: the edge-edge terms run over the edges of the faces (and any
+    # extra segments given alongside).
+    return x, scene_edges(E, F), F
 
 
 def _radius(value, name):
@@ -88,14 +83,11 @@ def per_vertex_separation(x, E, F, radius):
                           _PARTIAL_ENTRIES_MAX // max(n, 1)))
     partial = np.full((n_chunks, n), np.inf)
     if E.shape[0]:
-        lo, hi = _box_arrays(x, x, E, inflation)
-        _Plan(lo, hi, E, lo, hi, E, True).min_sq_into(x, partial)
+        fold_min_sq(x, E, E, inflation, partial, self_query=True)
     if F.shape[0]:
         used = referenced_vertices(n, F, E)
         Q = np.ascontiguousarray(np.flatnonzero(used).astype(np.int64)[:, None])
-        loA, hiA = _box_arrays(x, x, Q, inflation)
-        loB, hiB = _box_arrays(x, x, F, inflation)
-        _Plan(loA, hiA, Q, loB, hiB, F, False).min_sq_into(x, partial)
+        fold_min_sq(x, Q, F, inflation, partial, self_query=False)
     d = np.sqrt(partial.min(axis=0))
     return np.minimum(d, radius)
 

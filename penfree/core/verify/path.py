@@ -18,7 +18,7 @@ face j, start only). Against an obstacle the kind gets ``":<name>"`` and the
 scene primitive comes first: ``"ee:floor"`` (scene edge, obstacle edge),
 ``"vf:floor"`` (scene vertex, obstacle face), ``"fv:floor"`` (scene face,
 obstacle vertex), ``"ef:floor"``, ``"fe:floor"``. Obstacle edges are their
-edges plus the edges of their faces, in `edges_from_faces` order.
+edges merged with the edges of their faces (`penfree.core.topology.scene_edges`).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from ..contact.broad_phase import (
     vertex_face_candidates_between,
 )
 from ..contact.ccd import SEPARATED, ccd_indexed
-from ..topology import as_positions, as_topology, edges_from_faces
+from ..topology import as_positions, as_topology, scene_edges
 
 #: Candidate pairs handed to the narrow phase at once (bounds the per-block
 #: index and result arrays).
@@ -117,10 +117,7 @@ class _Body:
         n = self.x_t0.shape[0]
         self.F = as_topology(faces, 3, n, f"{name} faces") if faces is not None else np.zeros((0, 3), np.int64)
         E = as_topology(edges, 2, n, f"{name} edges") if edges is not None else np.zeros((0, 2), np.int64)
-        if len(self.F):
-            EF = edges_from_faces(self.F)
-            E = np.unique(np.concatenate([np.sort(E, axis=1), EF]), axis=0) if len(E) else EF
-        self.E = np.ascontiguousarray(E, dtype=np.int64)
+        self.E = scene_edges(E, self.F)
         self.V = np.arange(n, dtype=np.int64) if len(self.F) or len(self.E) else np.zeros(0, np.int64)
 
 
@@ -275,7 +272,8 @@ def _bodies(x_t0, x_t1, edges, faces, obstacles):
     return scene, obs
 
 
-def _thickness(thickness):
+def check_thickness(thickness):
+    """`thickness` as a float; InputError unless finite and >= 0."""
     t = float(thickness)
     if not (np.isfinite(t) and t >= 0.0):
         raise InputError(f"thickness must be finite and >= 0; got {thickness!r}")
@@ -329,7 +327,7 @@ def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=
     >>> r.ok, r.pairs[0][:3]
     (False, ('ee', 0, 1))
     """
-    thickness = _thickness(thickness)
+    thickness = check_thickness(thickness)
     max_pairs = int(max_pairs)
     scene, obs = _bodies(x_t0, x_t1, edges, faces, obstacles)
     if obstacle_names is not None:

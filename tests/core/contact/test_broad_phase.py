@@ -11,20 +11,21 @@ from penfree.core.contact import broad_phase as bp
 from penfree.core.contact.broad_phase import (
     edge_edge_candidates,
     edge_edge_candidates_between,
-    edge_edge_candidates_between_brute,
-    edge_edge_candidates_brute,
     vertex_face_candidates,
     vertex_face_candidates_between,
-    vertex_face_candidates_between_brute,
-    vertex_face_candidates_brute,
 )
 from penfree.core.topology import edges_from_faces
 from penfree.errors import InputError
 
+from oracles import (
+    edge_edge_candidates_between_brute,
+    edge_edge_candidates_brute,
+    vertex_face_candidates_between_brute,
+    vertex_face_candidates_brute,
+)
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(7)
+
+RNG_SEED = 7  # seed of the shared `rng` fixture (tests/conftest.py)
 
 
 def cloth(n, rng, amp=0.2):

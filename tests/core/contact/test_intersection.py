@@ -8,7 +8,6 @@ import pytest
 from penfree.core.contact.intersection import segments_triangles_intersect, triangles_intersect
 from penfree.errors import InputError
 
-
 from oracles import ee_sq, pe_sq, pt_sq  # exact Fraction distance oracles
 
 T0 = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]

@@ -1,5 +1,4 @@
-"""verify_step / verify_affine_step / verify_sequence: named scenes, a dense-time
-sampling oracle with exact distances, invariance, and the certificate fast path."""
+"""verify_step: named scenes, a dense-time sampling oracle with exact distances, invariance."""
 
 from fractions import Fraction
 
@@ -9,36 +8,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from penfree.core.contact.ccd_exact import exact_edge_edge, exact_vertex_face
-from penfree.core.pipeline.verification import verify_affine_step
 from penfree.core.verify.path import verify_step
 from penfree.errors import InputError
 
+from _geom import grid, rods, two_sheets
 from oracles import exact_dist_sq  # exact Fraction distance at a rational time
-
-
-def grid(n, z=0.0, shift=(0.0, 0.0)):
-    """(n*n, 3) vertices and (2 (n-1)^2, 3) faces of a unit-spaced flat sheet."""
-    ij = np.stack(np.meshgrid(np.arange(n), np.arange(n), indexing="ij"), -1).reshape(-1, 2).astype(float)
-    V = np.c_[ij + shift, np.full(len(ij), z)]
-    F = []
-    for i in range(n - 1):
-        for j in range(n - 1):
-            a = i * n + j
-            F += [[a, a + n, a + 1], [a + 1, a + n, a + n + 1]]
-    return V, np.array(F)
-
-
-def two_sheets(n=4, gap=1.0):
-    V0, F0 = grid(n, 0.0, (0.3, 0.3))
-    V1, F1 = grid(n, gap)
-    return np.r_[V0, V1], np.r_[F0, F1 + len(V0)]
-
-
-def rods(k=3, n=4, spacing=1.0):
-    """k parallel polylines of n vertices along x, stacked in z."""
-    V = np.array([[i, 0.0, spacing * r] for r in range(k) for i in range(n)])
-    E = np.array([[r * n + i, r * n + i + 1] for r in range(k) for i in range(n - 1)])
-    return V, E
 
 
 # --- named scenes -----------------------------------------------------------------------
@@ -63,10 +37,11 @@ def test_vertex_pushed_through_other_sheet_names_the_pair():
     assert "vf" in kinds
     vf = [p for p in r.pairs if p[0] == "vf"]
     assert vf[0][1] == v and 0.49 < vf[0][3] <= 0.5
-    n0 = 16
+    n_lower = len(grid(4)[0])  # vertices of the lower sheet come first (16)
+    assert v < n_lower
     assert all(f >= 18 for _, _, f, _ in vf)  # faces of the upper sheet (18 per sheet)
+    assert all((F[f] >= n_lower).all() for _, _, f, _ in vf)  # ... whose corners are all upper-sheet
     assert r.min_separation == 0.0
-    assert n0 == 16
 
 
 def test_rod_through_rod():
@@ -213,76 +188,3 @@ def test_verdict_invariant_under_relabelling_and_translation(seed, shift):
     assert (r.ok, r.start_ok, r.n_violations, r.n_start_violations) == (ref.ok, ref.start_ok, ref.n_violations, ref.n_start_violations)
     back = {tuple(sorted((int(eperm[i]), int(eperm[j])))) for _, i, j, _ in r.pairs}
     assert back == {tuple(sorted((i, j))) for _, i, j, _ in ref.pairs}
-
-
-# --- certificate fast path ------------------------------------------------------------------
-
-
-def _affine(V, A, b):
-    return V @ np.asarray(A).T + b
-
-
-@pytest.mark.parametrize("thickness", [0.0, 0.05], ids=["zero", "thick"])
-def test_affine_fast_path_agrees_with_ccd(thickness):
-    V, F = two_sheets(n=4, gap=0.5)
-    c, s = np.cos(0.3), np.sin(0.3)
-    A = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]) @ np.diag([1.1, 0.9, 1.05])
-    b = np.array([0.1, -0.2, 0.3])
-    x_def = _affine(V, A, b)
-    fast = verify_affine_step(V, x_def, A, b, faces=F, thickness=thickness)
-    assert fast is not None and fast.ok and fast.method == "certificate"
-    assert fast.min_separation >= thickness
-    assert verify_step(V, x_def, faces=F, thickness=thickness).ok
-
-
-def test_affine_fast_path_refuses_what_it_cannot_prove():
-    V, F = two_sheets(n=4, gap=0.5)
-    # 170 degree rotation with anisotropic stretch: det > 0, singular M(t) half-way
-    c, s = np.cos(np.radians(170)), np.sin(np.radians(170))
-    A = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]) @ np.diag([2.0, 0.5, 1.0])
-    assert np.linalg.det(A) > 0
-    x_def = _affine(V, A, np.zeros(3))
-    assert verify_affine_step(V, x_def, A, np.zeros(3), faces=F) is None
-    # and an x_def that is not A x + b (one vertex moved through the other sheet)
-    A = np.eye(3)
-    bad = V.copy()
-    bad[5, 2] = 2.0
-    assert verify_affine_step(V, bad, A, np.zeros(3), faces=F) is None
-    assert not verify_step(V, bad, faces=F).ok
-    # thickness larger than the gap: the start state violates, the fast path declines
-    assert verify_affine_step(V, V, A, np.zeros(3), faces=F, thickness=0.6) is None
-
-
-def test_verify_sequence_with_moving_obstacle():
-    from penfree import Obstacle, Sequence
-    from penfree.core.pipeline.verification import verify_sequence
-
-    V, F = grid(3, 1.0)
-    floor = np.array([[-5, -5, 0], [5, -5, 0], [5, 5, 0], [-5, 5, 0.0]])
-    # the sheet stays put; the floor rises 0.6 per frame and reaches it between frames 1 and 2
-    ob = Obstacle("floor", np.stack([floor + [0, 0, 0.6 * s] for s in range(3)]), faces=np.array([[0, 1, 2], [0, 2, 3]]))
-    seq = Sequence(positions=np.stack([V] * 3), faces=F, obstacles=[ob], origin="mem").validate()
-    calls = []
-    rep = verify_sequence(seq, progress=lambda: calls.append(1))
-    assert [s.ok for s in rep.steps] == [True, False] and len(calls) == 2
-    kinds = {p[0] for p in rep.steps[1].result.pairs}
-    assert kinds <= {"fv:floor", "ee:floor", "vf:floor"} and "vf:floor" in kinds
-    assert all(0.6 < p[3] <= 2 / 3 for p in rep.steps[1].result.pairs)
-    assert not rep.ok and rep.n_failed == 1
-    only_first = verify_sequence(seq, frames=(0, 2))
-    assert len(only_first.steps) == 1 and only_first.ok
-
-
-def test_sequence_rechecks_start_intersections_after_a_failed_step():
-    from penfree import Sequence
-    from penfree.core.pipeline.verification import verify_sequence
-
-    V, F = two_sheets()
-    seg = np.array([[1.5, 1.6, -1.0], [1.5, 1.6, 2.0]])  # pierces both sheets in every frame
-    W = np.r_[V, seg]
-    E = np.array([[len(V), len(V) + 1]])
-    frames = np.stack([W + [0.01 * s, 0, 0] for s in range(3)])
-    rep = verify_sequence(Sequence(positions=frames, faces=F, edges=E).validate())
-    assert [s.result.n_start_violations for s in rep.steps] == [2, 2]
-    clean = verify_sequence(Sequence(positions=np.stack([V + [0, 0, 0.1 * s] for s in range(4)]), faces=F).validate())
-    assert clean.ok and len(clean.steps) == 3
