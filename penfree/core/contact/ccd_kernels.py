@@ -18,13 +18,14 @@ from ...constants import (
     CCD_ERR_ABS,
     CCD_ERR_REL,
     CCD_MAX_BOXES,
+    CCD_MAX_COORD,
     CCD_TOI_TOL,
     CCD_TOL_REL,
+    UNIT_ROUNDOFF,
 )
 
-_U = 2.0**-53  # unit roundoff of float64 (round to nearest)
-#: Coordinates beyond this could overflow in the ~6 M-sized intermediate products.
-_MAX_COORD = 1e150
+_U = UNIT_ROUNDOFF  # the short name of the error bounds below
+_MAX_COORD = CCD_MAX_COORD
 #: Batches up to this size run on one thread (thread wake-up costs ~ms on a busy machine).
 _SERIAL_MAX = 512
 

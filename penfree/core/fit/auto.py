@@ -169,7 +169,7 @@ def predict_map_passes(x_prev, x, D, u, c, d_start, sigma, r_q, thickness=0.0, g
     ("higher") is then one `numpy.partition` of the ratios. Compared
     with ``predict_passes(apply_map(x, D, u, c)[0], x_pred, predicted_bounds(...))``
     the only difference is the rounding of x_def: `apply_map` may fuse and reorder
-    its multiply-adds, so x_def can differ in its last bit (tests/core/test_selection.py).
+    its multiply-adds, so x_def can differ in its last bit (tests/core/fit/test_auto.py).
 
     Examples
     --------
