@@ -1,10 +1,8 @@
 """Report writer: JSON round trip with stable keys, Markdown, plots, CI checks."""
 
-import importlib
 import json
 import math
 import sys
-import types
 
 import numpy as np
 import pytest
@@ -18,12 +16,12 @@ from penfree.report.build import (
     load_report_json,
     make_file_report,
     open_result,
-    run_checks,
     select_steps,
     stored_stats,
     worst_steps,
     write_report,
 )
+from penfree.report.checks import run_checks
 from penfree.sequence import Sequence
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -33,16 +31,6 @@ def _far_bounds(x, *, edges=None, faces=None, thickness=0.0, gamma=DEFAULT_GAMMA
     # Stand-in for trust_region_bounds on scenes whose primitives are all farther apart
     # than r_q: every vertex gets gamma * (r_q - thickness) (SPEC section 7).
     return np.full(np.asarray(x).shape[0], gamma * max(0.0, query_radius - thickness))
-
-
-@pytest.fixture
-def bounds(monkeypatch):
-    """The real trust_region_bounds once it exists, else the far-apart stand-in."""
-    try:
-        importlib.import_module("penfree.core.trust.bounds")
-    except ModuleNotFoundError:
-        monkeypatch.setitem(sys.modules, "penfree.core.trust.bounds",
-                            types.SimpleNamespace(trust_region_bounds=_far_bounds))
 
 
 def scene_arrays(T=6, n=6, seed=3):
@@ -112,7 +100,7 @@ def test_stored_stats_are_used(tmp_path):
     assert rep["certificate"]["all_certified"] and rep["certificate"]["min_margin"] == 1.0
 
 
-def test_stats_computed_when_missing(tmp_path, bounds):
+def test_stats_computed_when_missing(tmp_path):
     res = open_result(write_tiny_result(tmp_path / "r.h5"))
     rep = make_file_report("r.h5", res, ladder=False, replay=True)
     assert rep["stats_source"] == "computed"
@@ -222,7 +210,7 @@ def test_load_report_json_rejects_other_json(tmp_path):
         load_report_json(tmp_path / "none.json")
 
 
-def test_plots_written_with_matplotlib(tmp_path, bounds):
+def test_plots_written_with_matplotlib(tmp_path):
     pytest.importorskip("matplotlib")
     res = open_result(write_tiny_result(tmp_path / "r.h5", with_stats=True))
     rep = make_file_report("r.h5", res, ladder=False)

@@ -19,7 +19,8 @@ import time
 import numpy as np
 
 from ...constants import DEFAULT_GAMMA, DEFAULT_REPLAY_CAP
-from ..trust.stats import _mean, query_radius, ratio_stats, replay_passes, residual_summary
+from ..trust.stats import query_radius, ratio_stats, replay_passes, residual_summary
+from ..trust.summary import finite_mean
 
 #: The ladder, cheapest first (SPEC section 4), then the automatic choice.
 LADDER_MODELS = ("translation", "rigid", "similarity", "affine", "auto")
@@ -197,17 +198,17 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
         p = per[m]
         rows.append({
             "model": m,
-            "fit_ms_mean": _mean(p["fit_ms"]),
+            "fit_ms_mean": finite_mean(p["fit_ms"]),
             "fit_ms_median": _median(p["fit_ms"]),
             "residual_next_rms": _pooled_rms(p["residual_next_rms"]),
             "residual_pred_rms": _pooled_rms(p["residual_pred_rms"]),
-            "k_1pct_next": _mean(p["k_1pct_next"]),
-            "k_any_next": _mean(p["k_any_next"]),
+            "k_1pct_next": finite_mean(p["k_1pct_next"]),
+            "k_any_next": finite_mean(p["k_any_next"]),
             "k_1pct_next_sum": _sum(p["k_1pct_next"]),
-            "replay_k_1pct_next": _mean(p["replay_k_1pct_next"]),
-            "replay_k_any_next": _mean(p["replay_k_any_next"]),
-            "hit_rate_next": _mean(p["hit_rate_next"]),
-            "certificate_margin_mean": _mean(p["certificate_margin"]),
+            "replay_k_1pct_next": finite_mean(p["replay_k_1pct_next"]),
+            "replay_k_any_next": finite_mean(p["replay_k_any_next"]),
+            "hit_rate_next": finite_mean(p["hit_rate_next"]),
+            "certificate_margin_mean": finite_mean(p["certificate_margin"]),
             "certificate_margin_min": _min(p["certificate_margin"]),
             "models_used": dict(sorted(used[m].items())),
         })
