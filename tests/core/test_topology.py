@@ -13,9 +13,7 @@ from penfree.core.topology import (
 from penfree.errors import InputError
 
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(11)
+RNG_SEED = 11  # seed of the shared `rng` fixture (tests/conftest.py)
 
 
 def test_edges_from_faces_matches_set(rng):

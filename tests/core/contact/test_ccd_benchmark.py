@@ -1,5 +1,5 @@
 """CCD against public ground truth: Wang et al. 2021 handcrafted queries and the
-IPC Toolkit / CCD-Wrapper unit-test scenarios (../shared/ccd-benchmark).
+IPC Toolkit / CCD-Wrapper unit-test scenarios (vendored in tests/data/ccd-benchmark).
 
 Hard requirement: zero false negatives on every query, for the float kernel
 alone and with the exact fallback. False positives are reported (run with -s)
@@ -17,8 +17,7 @@ import pytest
 from penfree.core.contact.ccd import SEPARATED, ccd_details
 from penfree.core.contact.ccd_exact import exact_edge_edge, exact_vertex_face
 
-ROOT = Path(__file__).parents[2].parent / "shared" / "ccd-benchmark"
-pytestmark = pytest.mark.skipif(not ROOT.is_dir(), reason=f"CCD benchmark data not found at {ROOT}")
+ROOT = Path(__file__).parents[2] / "data" / "ccd-benchmark"
 
 KINDS = {"ee": "edge-edge", "vf": "vertex-face"}
 #: float kernel alone (thickness 0, no exact fallback): measured 3.3% (ee) and

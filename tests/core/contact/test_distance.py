@@ -30,9 +30,7 @@ RTOL = 1e-12
 ATOL = 1e-13
 
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(20261121)
+RNG_SEED = 20261121  # seed of the shared `rng` fixture (tests/conftest.py)
 
 
 # --- exact oracle -------------------------------------------------------------

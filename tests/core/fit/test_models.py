@@ -14,9 +14,7 @@ from penfree.errors import InputError
 from _geom import rot, prev_for
 
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(7)
+RNG_SEED = 7  # seed of the shared `rng` fixture (tests/conftest.py)
 
 
 def lstsq_fit(x_prev, x, w=None):

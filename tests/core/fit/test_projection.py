@@ -11,9 +11,7 @@ from penfree.errors import InputError
 from _geom import rot
 
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(11)
+RNG_SEED = 11  # seed of the shared `rng` fixture (tests/conftest.py)
 
 
 def sym(X):

@@ -15,9 +15,7 @@ from penfree.errors import InputError
 from _geom import rot, prev_for
 
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(3)
+RNG_SEED = 3  # seed of the shared `rng` fixture (tests/conftest.py)
 
 
 def check_result(r: StepResult, x_prev, x, margin):

@@ -36,9 +36,7 @@ def _far_bounds(x, r_q):
     return np.full(x.shape[0], 0.45 * r_q)
 
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(5)
+RNG_SEED = 5  # seed of the shared `rng` fixture (tests/conftest.py)
 
 
 def test_ladder_with_oracle_fit(rng):
@@ -92,7 +90,6 @@ def test_margin_one_means_translation(rng):
 
 
 def test_ladder_with_fit_step(rng):
-    pytest.importorskip("penfree.core.fit.step")
     pos = _affine_motion(rng)
     frames = np.arange(1, pos.shape[0])
     lad = model_ladder(pos, frames, bounds_fn=_far_bounds)
