@@ -49,9 +49,8 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, no_ladder, no_
     """
     from ..formats.atomic import check_output
     from ..report.build import (
-        load_report_json, make_file_report, open_result, select_steps, stored_stats, write_report,
+        load_report_json, make_file_report, open_result, run_checks, select_steps, stored_stats, write_report,
     )
-    from ..report.checks import run_checks
 
     if (baseline_path is None) != (max_regression is None):
         raise InputError("--baseline and --max-regression go together; give both or neither")

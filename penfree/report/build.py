@@ -1,5 +1,9 @@
 """The ``penfree report`` output: ``report.md``, ``report.json`` and PNG plots.
 
+This module builds a file's report from the library's results, runs the CI checks and
+writes the report directory; the Markdown rendering is `penfree.report.markdown`, the
+plots `penfree.report.plots`.
+
 Frame times and speedups are *projected* (SPEC section 7): they assume a simulator
 that spends a share `f` of a frame of `T_frame` in CD and needs K CD passes per frame;
 both assumptions are written into every output.
@@ -294,3 +298,106 @@ def write_report(outdir, reports, overwrite=False, *, options=None, checks=None,
         with open(os.path.join(tmp, "report.md"), "w", encoding="utf-8") as fh:
             fh.write(render_markdown(doc))
     return doc
+
+
+# ---------------------------------------------------------------- CI checks
+
+#: Figures compared against a baseline report: (dotted path in ``summary``, True if
+#: higher is better).
+REGRESSION_FIGURES = (
+    ("deformed.k_1pct_next", False),
+    ("projected.k_1pct.speedup", True),
+    ("deformed.hit_rate_next", True),
+)
+
+
+def _dig(d, dotted):
+    for part in dotted.split("."):
+        if not isinstance(d, dict) or part not in d:
+            return None
+        d = d[part]
+    return None if d is None or (isinstance(d, float) and math.isnan(d)) else float(d)
+
+
+def _check(name, file, passed, value, threshold, message):
+    return {"name": name, "file": file, "passed": bool(passed), "value": value, "threshold": threshold,
+            "message": message}
+
+
+def run_checks(reports, *, fail_if_uncertified=False, min_speedup=None, min_hit_rate_gain=None,
+               baseline=None, max_regression=None) -> list:
+    """CI checks over the file reports; a check that cannot be evaluated fails.
+
+    Parameters
+    ----------
+    reports : list of dict
+        `build_file_report` entries.
+    fail_if_uncertified : bool
+        Every step's certificate margin must be finite and >= its required margin.
+    min_speedup : float, optional
+        Minimum *projected* speedup (K_1pct rule, against the next frame).
+    min_hit_rate_gain : float, optional
+        Minimum gain of the hit rate against the next frame, deformed minus baseline,
+        in *percentage points* (5 means from e.g. 60 % to at least 65 %).
+    baseline : dict, optional
+        A stored report.json (`load_report_json`); files are matched by ``name``
+        (a single file on each side is matched whatever its name).
+    max_regression : float, optional
+        Largest allowed regression against `baseline`, in percent of the baseline
+        value, of each figure of `REGRESSION_FIGURES` (lower K_1pct, higher speedup and
+        hit rate are better).
+
+    Returns
+    -------
+    list of dict
+        {``name``, ``file``, ``passed``, ``value``, ``threshold``, ``message``}.
+    """
+    checks = []
+    for rep in reports:
+        name, sm = rep["name"], rep["summary"]
+        if fail_if_uncertified:
+            c = rep["certificate"]
+            checks.append(_check("certified", name, c["all_certified"] and c["n_uncertified"] == 0,
+                                 c["n_uncertified"], 0,
+                                 f"{c['n_uncertified']} uncertified step(s)" + (
+                                     f", frames {c['uncertified_frames'][:10]}" if c["n_uncertified"] else "")))
+        if min_speedup is not None:
+            v = _dig(sm, "projected.k_1pct.speedup")
+            checks.append(_check("min_speedup", name, v is not None and v >= min_speedup, v, min_speedup,
+                                 "no step with a next frame" if v is None else
+                                 f"projected speedup {v:.3f} (minimum {min_speedup:g})"))
+        if min_hit_rate_gain is not None:
+            v = _dig(sm, "hit_rate_gain_next")
+            v = None if v is None else 100.0 * v
+            checks.append(_check("min_hit_rate_gain", name, v is not None and v >= min_hit_rate_gain, v,
+                                 min_hit_rate_gain, "no step with a next frame" if v is None else
+                                 f"hit-rate gain {v:+.2f} points (minimum {min_hit_rate_gain:+g})"))
+        if baseline is not None:
+            checks.extend(_regression_checks(rep, baseline, max_regression, single=len(reports) == 1))
+    return checks
+
+
+def _regression_checks(rep, baseline, max_regression, single):
+    name = rep["name"]
+    old_files = baseline.get("files", [])
+    match = [f for f in old_files if f.get("name") == name]
+    if not match and single and len(old_files) == 1:
+        match = old_files
+    if not match:
+        return [_check("regression", name, False, None, max_regression, f"no entry for {name} in the baseline report")]
+    old_sm, out = match[0].get("summary", {}), []
+    for path, higher_better in REGRESSION_FIGURES:
+        old, new = _dig(old_sm, path), _dig(rep["summary"], path)
+        if old is None:
+            out.append(_check(f"regression:{path}", name, True, new, max_regression, "no baseline value; not compared"))
+            continue
+        if new is None:
+            out.append(_check(f"regression:{path}", name, False, None, max_regression,
+                              f"baseline {old:g}, now missing"))
+            continue
+        worse = (old - new) if higher_better else (new - old)
+        pct = 100.0 * worse / abs(old) if old != 0 else (math.inf if worse > 0 else 0.0)
+        out.append(_check(f"regression:{path}", name, pct <= max_regression, new, max_regression,
+                          f"{old:g} -> {new:g} ({'+' if pct > 0 else ''}{pct:.2f}% regression, "
+                          f"maximum {max_regression:g}%)" if pct > 0 else f"{old:g} -> {new:g} (no regression)"))
+    return out

@@ -16,12 +16,12 @@ from penfree.report.build import (
     load_report_json,
     make_file_report,
     open_result,
+    run_checks,
     select_steps,
     stored_stats,
     worst_steps,
     write_report,
 )
-from penfree.report.checks import run_checks
 from penfree.sequence import Sequence
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
