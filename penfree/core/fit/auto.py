@@ -74,7 +74,7 @@ def predicted_bounds(d_start, sigma, r_q, thickness, gamma=K.DEFAULT_GAMMA):
     Parameters
     ----------
     d_start : (N,) float64
-        ``min(r_q, terms)`` at the start state (`trust_region.per_vertex_separation`).
+        ``min(r_q, terms)`` at the start state (`penfree.core.trust.bounds.per_vertex_separation`).
     sigma : float
         Lower bound of sigma_min(A) (`sigma_min_lower_bound`).
     r_q, thickness, gamma : float

@@ -91,7 +91,7 @@ _predict_parallel = njit(cache=True, parallel=True, error_model="numpy")(cache_v
 def predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r, unbounded=True):
     """Fill `r` (N,) float64 with the candidate's ratios; return ``(hits, n_blocked)``.
 
-    Inputs as validated by `selection.select_step`; ``s = sigma * (1 - PREDICT_SLACK_REL)``
+    Inputs as validated by `penfree.core.fit.auto.select_step`; ``s = sigma * (1 - PREDICT_SLACK_REL)``
     (1 for doing nothing, whose bounds are the start bounds exactly). `unbounded`: a
     moving vertex whose predicted bound is 0 gets r = +inf instead of being left out
     (False only for doing nothing, where a zero bound is exact).
