@@ -1,6 +1,7 @@
 """The numeric pipeline, one subpackage per stage (see ARCHITECTURE.md).
 
-Base modules (`topology`, `describe`) are used by every stage. The stages are
-`fit` -> `contact` -> `verify` -> `trust`; a stage imports only base modules and
-the stages before it. `pipeline` wires them and nothing in `core` imports it.
+Base modules (`topology`, `polynomial`, `describe`) serve every stage. The stages:
+`fit` and `contact` import only the base; `verify` also imports `fit` and `contact`;
+`trust` also imports `contact`. `pipeline` wires them, and no stage imports it
+(tests/test_architecture.py checks all of this).
 """
