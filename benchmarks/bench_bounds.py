@@ -31,7 +31,7 @@ import numba
 import numpy as np
 
 from penfree.core.topology import edges_from_faces
-from penfree.core.trust_region import trust_region_bounds
+from penfree.core.trust.bounds import trust_region_bounds
 
 GAMMA = 0.45
 

@@ -29,7 +29,7 @@ import numpy as np
 
 import penfree
 from penfree import constants as K
-from penfree.core.fit import apply_map, fit_moments
+from penfree.core.fit.models import apply_map, fit_moments
 
 
 def rod_bundle(n, seed=0):

@@ -27,9 +27,9 @@ import time
 import numpy as np
 
 import penfree
-from penfree.core import fit as _fit
-from penfree.core.selection import candidate_maps, predict_passes, predicted_bounds, select_step
-from penfree.core.trust_region import scene_arrays, per_vertex_separation
+from penfree.core.fit import models as _fit
+from penfree.core.fit.auto import candidate_maps, predict_passes, predicted_bounds, select_step
+from penfree.core.trust.bounds import scene_arrays, per_vertex_separation
 
 SCENES = ("yarn-bundle", "cloth-ref")
 

@@ -22,8 +22,8 @@ import time
 
 import numpy as np
 
-from penfree.core.verify import verify_step
-from penfree.core.verify_file import verify_affine_step
+from penfree.core.verify.path import verify_step
+from penfree.core.verify.affine import verify_affine_step
 
 
 def rods(n, regime):

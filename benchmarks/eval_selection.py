@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import penfree  # noqa: E402
-from penfree.core.ladder import FIXED_MODELS, model_ladder  # noqa: E402
+from penfree.core.pipeline.ladder import FIXED_MODELS, model_ladder  # noqa: E402
 
 SAMPLES = ["cloth.h5", "rods.h5", "twisting_cloth.h5", "twisting_cloth_contact.h5", "cables.h5",
            "twisted_cables.h5"]

@@ -17,13 +17,13 @@ from .sequence import Obstacle, Sequence
 _LAZY = {
     "read_sequence": ("penfree.formats", "read_sequence"),
     "write_sequence": ("penfree.formats", "write_sequence"),
-    "fit_step": ("penfree.core.step", "fit_step"),
-    "StepResult": ("penfree.core.step", "StepResult"),
-    "certify": ("penfree.core.certificate", "certify"),
-    "ccd_edge_edge": ("penfree.core.ccd", "ccd_edge_edge"),
-    "ccd_vertex_face": ("penfree.core.ccd", "ccd_vertex_face"),
-    "verify_step": ("penfree.core.verify", "verify_step"),
-    "trust_region_bounds": ("penfree.core.trust_region", "trust_region_bounds"),
+    "fit_step": ("penfree.core.fit.step", "fit_step"),
+    "StepResult": ("penfree.core.fit.step", "StepResult"),
+    "certify": ("penfree.core.fit.certificate", "certify"),
+    "ccd_edge_edge": ("penfree.core.contact.ccd", "ccd_edge_edge"),
+    "ccd_vertex_face": ("penfree.core.contact.ccd", "ccd_vertex_face"),
+    "verify_step": ("penfree.core.verify.path", "verify_step"),
+    "trust_region_bounds": ("penfree.core.trust.bounds", "trust_region_bounds"),
 }
 
 __all__ = [

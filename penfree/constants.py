@@ -24,7 +24,7 @@ AUTO_MODEL_RTOL = 0.05
 MODELS = ("translation", "rigid", "similarity", "affine")
 PROJECTIONS = ("none", "svd", "sym", "auto")
 
-#: Noise-aware rank cut-off of the fit (penfree.core.fit.significant_subspace):
+#: Noise-aware rank cut-off of the fit (penfree.core.fit.models.significant_subspace):
 #: a direction of C is kept only if the standard error of the slope D e it
 #: carries is at most this (dimensionless strain per step). Real per-step
 #: strains are ~1e-3..1e-2 and a slope error of 1e-2 moves sigma_min(I + tD)
@@ -53,7 +53,7 @@ PARALLEL_MIN_VERTICES = 16384
 #: recipe clamps into [margin, S_MAX]); per-frame motion never needs more.
 SVD_SMAX = 10.0
 
-#: Fast certificate (penfree.core.certificate.fast_margin_bound): rounding
+#: Fast certificate (penfree.core.fit.certificate.fast_margin_bound): rounding
 #: allowance c in  lambda_min >= computed - c * eps * (1 + ||sym D||_F).
 #: Covers forming D = A - I and sym(D) (entrywise relative error <= eps/2,
 #: Frobenius-bounded), LAPACK's backward error of the 3x3 symmetric
@@ -86,20 +86,24 @@ DEFAULT_FRAME_MS = 32.0
 DEFAULT_REPLAY_CAP = 64
 #: K_1pct = ceil of this percentile of r_v (SPEC: "re-detect when >= 1% are truncated").
 K_PERCENTILE = 99
-#: numpy.percentile method of every r_v quantile (core/stats.py): "higher" returns an
+#: numpy.percentile method of every r_v quantile (core/trust/stats.py): "higher" returns an
 #: observed r_v, and with it ceil(q99) is exactly the smallest pass count after which
 #: fewer than 1% of the vertices are still truncated.
 PERCENTILE_METHOD = "higher"
-#: r_v histograms (core/stats.py): log bins over 10^lo .. 10^hi, this many per decade,
+#: r_v histograms (core/trust/stats.py): log bins over 10^lo .. 10^hi, this many per decade,
 #: plus a bin for r = 0 below and one for r >= 10^hi (and blocked vertices) above.
 R_HIST_DECADES = (-4, 4)
 R_HIST_BINS_PER_DECADE = 8
-#: trust_region_bounds without a query radius (penfree/core/trust_region.py):
+#: trust_region_bounds without a query radius (penfree/core/trust/bounds.py):
 #: r_q = thickness + this fraction of the bounding-box diagonal of x, a stand-in
 #: for the step's largest displacement that only the caller knows (lead's brief).
 DEFAULT_RADIUS_FRACTION = 0.1
 
-# --- CCD (SPEC sections 6 and 10; penfree/core/ccd.py) -----------------------
+# --- floating point -----------------------------------------------------------
+#: Unit roundoff of float64 (round to nearest), the u of every rounding-error bound.
+UNIT_ROUNDOFF = 2.0**-53
+
+# --- CCD (SPEC sections 6 and 10; penfree/core/contact/ccd.py) ---------------
 #: Proven bound of the floating-point error of one corner value of the contact
 #: function F, relative to the largest coordinate magnitude M of the query.
 #: The worst evaluation chain (x(t) = x0 + t (x1 - x0), then 3 differences, 2
@@ -123,7 +127,17 @@ CCD_MAX_BOXES = 1 << 15
 #: cannot stall `verify` for minutes.
 CCD_MAX_EXACT = 5000
 
-# --- collision-aware model choice (penfree/core/selection.py) ----------------
+#: Coordinates beyond this could overflow in the ~6 M-sized intermediate products
+#: of the CCD kernel: such queries are never declared separated.
+CCD_MAX_COORD = 1e150
+
+# --- verification (penfree/core/verify/affine.py) -----------------------------
+#: Certificate margins tried (largest first) by the affine fast path of `verify` when
+#: the field-of-values bound gives none: rotations beyond arccos(m) per step need a
+#: smaller m; below 0.01 the start gaps it asks for are too wide to be useful.
+VERIFY_MARGIN_LADDER = (0.5, 0.25, 0.1, 0.03, 0.01)
+
+# --- collision-aware model choice (penfree/core/fit/auto.py) -----------------
 #: Rounding allowance of sigma_min from LAPACK's SVD: backward error
 #: p(3) * eps * ||A||_2 with p(3) a small constant; 64 is a wide factor of safety.
 SIGMA_ROUNDING_C = 64.0

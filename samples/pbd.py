@@ -306,8 +306,8 @@ class Solver:
 
     def _contact_state(self):
         """Candidate contact pairs and the OGC bounds at the current positions."""
-        from penfree.core.broad_phase import edge_edge_candidates, vertex_face_candidates
-        from penfree.core.trust_region import trust_region_bounds
+        from penfree.core.contact.broad_phase import edge_edge_candidates, vertex_face_candidates
+        from penfree.core.trust.bounds import trust_region_bounds
 
         c = self.contact
         reach = 2 * c["radius"]

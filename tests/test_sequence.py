@@ -7,9 +7,7 @@ from penfree.errors import InputError
 from penfree.sequence import Obstacle, Sequence
 
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(20261121)
+RNG_SEED = 20261121  # seed of the shared `rng` fixture (tests/conftest.py)
 
 
 def _seq(rng, **kw):

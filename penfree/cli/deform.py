@@ -47,7 +47,7 @@ def command(input_path, output_path, model, projection, margin, thickness, frame
     Each step s moves frame s toward the prediction 2 x^s - x^(s-1); the straight path
     to the deformed state is certified penetration-free (exact test) before it is written.
     """
-    from ..core.pipeline import deform_sequence, summarize_steps
+    from ..core.pipeline.deform import deform_sequence, summarize_steps
     from ..formats import read_sequence
     from ..formats.atomic import check_output
     from ..formats.result import write_result
@@ -67,7 +67,7 @@ def command(input_path, output_path, model, projection, margin, thickness, frame
         )
     groups = dict(result.groups)
     if with_stats:
-        from ..core.stats import compute_stats
+        from ..core.trust.stats import compute_stats
 
         with Progress(len(result.steps["frame"]), "stats") as bar:
             groups["stats"] = compute_stats_for(seq, result, thickness, compute_stats, bar)

@@ -48,7 +48,7 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, no_ladder, no_
       penfree report deformed.h5 -o new/ --baseline old/report.json --max-regression 5
     """
     from ..formats.atomic import check_output
-    from ..formats.report import (
+    from ..report.build import (
         load_report_json, make_file_report, open_result, run_checks, select_steps, stored_stats, write_report,
     )
 

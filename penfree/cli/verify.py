@@ -53,7 +53,7 @@ def command(path, thickness, frames, threads, as_json, max_pairs, mode):
     certificate of steps/A); a raw sequence from frame s to s+1. Exit 0: all steps safe;
     1: a violation (including a start state that already violates); 2: unusable input.
     """
-    from ..core.verify_file import n_steps, verify_file
+    from ..core.pipeline.verification import n_steps, verify_file
 
     frame_slice = parse_frames(frames)
     set_threads(threads)

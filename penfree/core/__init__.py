@@ -1,2 +1,7 @@
-"""Numeric pipeline stages: fit, projection and certificate, broad phase, distances,
-CCD, verification, trust region, statistics. `step` and `pipeline` wire them."""
+"""The numeric pipeline, one subpackage per stage (see ARCHITECTURE.md).
+
+Base modules (`topology`, `polynomial`, `describe`) serve every stage. The stages:
+`fit` and `contact` import only the base; `verify` also imports `fit` and `contact`;
+`trust` also imports `contact`. `pipeline` wires them, and no stage imports it
+(tests/test_architecture.py checks all of this).
+"""

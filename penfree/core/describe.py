@@ -11,14 +11,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..sequence import Sequence
+from .topology import edges_from_faces
 
 
 def _unique_edges(seq: Sequence) -> np.ndarray | None:
     """Edges of the scene: the faces' edges for triangles (each once), else the edges."""
     if seq.kind == "triangles":
-        F = seq.faces
-        E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
-        return np.unique(np.sort(E, axis=1), axis=0)
+        return edges_from_faces(seq.faces)
     if seq.kind == "segments":
         return seq.edges
     return None

@@ -122,6 +122,38 @@ def edges_from_faces(F) -> np.ndarray:
     return np.ascontiguousarray(np.stack([key // base, key % base], axis=1))
 
 
+def scene_edges(E, F) -> np.ndarray:
+    """The edge set of a scene: its segments merged with the edges of its faces.
+
+    The one place that decides which edges a scene has (verification, trust regions).
+
+    Parameters
+    ----------
+    E : (M, 2) int64
+        Segments, validated (`as_topology`); may be empty.
+    F : (K, 3) int64
+        Faces, validated; may be empty.
+
+    Returns
+    -------
+    E : (M', 2) int64, C-contiguous
+        Without faces, the segments in their given order; with faces, the union of
+        the segments (each row sorted) and `edges_from_faces`, sorted and unique.
+        Degenerate segments ``(i, i)`` are dropped either way: they have no extent
+        and are no primitive.
+
+    Examples
+    --------
+    >>> scene_edges(np.array([[3, 3], [4, 0]]), np.array([[0, 1, 2]])).tolist()
+    [[0, 1], [0, 2], [0, 4], [1, 2]]
+    """
+    E = np.asarray(E, dtype=np.int64).reshape(-1, 2)
+    if len(F):
+        FE = edges_from_faces(F)
+        E = np.unique(np.concatenate([np.sort(E, axis=1), FE]), axis=0) if len(E) else FE
+    return np.ascontiguousarray(E[E[:, 0] != E[:, 1]])
+
+
 def vertex_incidence(T, n_vertices: int):
     """CSR map from each vertex to the primitives that contain it.
 

@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from penfree.cli import main
-from penfree.core.certificate import certify
+from penfree.core.fit.certificate import certify
 from penfree.formats import write_sequence
 from penfree.formats.result import read_result
 from penfree.sequence import Sequence

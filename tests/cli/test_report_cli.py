@@ -1,39 +1,19 @@
 """``penfree report``: files written, exit codes of the CI checks, unusable input."""
 
-import importlib
 import json
 import math
-import sys
-import types
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from penfree.cli import main
-from penfree.constants import DEFAULT_GAMMA
 from penfree.sequence import Sequence
-
-
-def _far_bounds(x, *, edges=None, faces=None, thickness=0.0, gamma=DEFAULT_GAMMA, query_radius=None):
-    # Stand-in for trust_region_bounds on scenes whose primitives are all farther apart
-    # than r_q: every vertex gets gamma * (r_q - thickness) (SPEC section 7).
-    return np.full(np.asarray(x).shape[0], gamma * max(0.0, query_radius - thickness))
-
-
-@pytest.fixture(autouse=True)
-def bounds(monkeypatch):
-    """The real trust_region_bounds once it exists, else the far-apart stand-in."""
-    try:
-        importlib.import_module("penfree.core.trust_region")
-    except ModuleNotFoundError:
-        monkeypatch.setitem(sys.modules, "penfree.core.trust_region",
-                            types.SimpleNamespace(trust_region_bounds=_far_bounds))
 
 
 def _result_file(path, uncertified=False):
     # Two 2-edge rods 10 apart (out of query range of each other), drifting and spinning
-    # slowly, so the real bounds equal the stand-in's; a translation map per step
+    # slowly, so every vertex gets the far-apart bound gamma (r_q - thickness); a translation map per step
     # (certified, margin 1).
     from penfree.formats.result import write_result
 
@@ -90,7 +70,6 @@ def test_json_on_stdout_and_frames(result, tmp_path):
 
 
 def test_ladder_and_replay(result, tmp_path):
-    pytest.importorskip("penfree.core.step")
     r = run(result, "-o", tmp_path / "rep", "--replay", "--no-plots", "--json")
     assert r.exit_code == 0, r.output
     f = json.loads(r.output)["files"][0]

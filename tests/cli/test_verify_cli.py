@@ -116,7 +116,7 @@ def test_start_state_intersection_reported(tmp_path):
 
 
 def test_deform_result_verifies(tmp_path):
-    from penfree.core.pipeline import deform_sequence
+    from penfree.core.pipeline.deform import deform_sequence
     from penfree.formats.result import write_result
 
     frames, F = cloth_frames(T=5)

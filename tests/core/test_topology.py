@@ -8,14 +8,13 @@ from penfree.core.topology import (
     as_topology,
     edges_from_faces,
     referenced_vertices,
+    scene_edges,
     vertex_incidence,
 )
 from penfree.errors import InputError
 
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(11)
+RNG_SEED = 11  # seed of the shared `rng` fixture (tests/conftest.py)
 
 
 def test_edges_from_faces_matches_set(rng):
@@ -71,3 +70,28 @@ def test_validation_messages():
         as_topology(np.array([[0, 2], [-1, 1]]), 2, 3)
     assert as_positions(np.ones((2, 3), np.float32)).dtype == np.float64
     assert as_topology(None, 3, 5).shape == (0, 3)
+
+
+def _edge_set_oracle(E, F):
+    """Plain-Python edge set: sorted pairs of the faces' sides and the segments, no (i, i)."""
+    out = {tuple(sorted(e)) for e in E}
+    for f in F:
+        out |= {tuple(sorted((f[a], f[b]))) for a, b in ((0, 1), (1, 2), (2, 0))}
+    return sorted(p for p in out if p[0] != p[1])
+
+
+@pytest.mark.parametrize("case", ["segments-only", "faces-only", "mixed", "degenerate"])
+def test_scene_edges_against_set_oracle(rng, case):
+    n = 12
+    E = rng.integers(0, n, size=(8, 2)) if case != "faces-only" else np.zeros((0, 2), np.int64)
+    F = rng.integers(0, n, size=(6, 3)) if case != "segments-only" else np.zeros((0, 3), np.int64)
+    if case == "degenerate":
+        E[:3, 1] = E[:3, 0]  # (i, i) segments
+        F[0] = [4, 4, 5]  # a face repeating a vertex
+    got = scene_edges(E, F)
+    assert got.dtype == np.int64 and got.flags.c_contiguous
+    assert (got[:, 0] != got[:, 1]).all()
+    if len(F):
+        assert [tuple(e) for e in got.tolist()] == _edge_set_oracle(E.tolist(), F.tolist())
+    else:  # segments keep their order (pair indices refer to it); only (i, i) go
+        assert got.tolist() == [e for e in E.tolist() if e[0] != e[1]]

@@ -11,9 +11,7 @@ from penfree.formats import read_sequence, write_sequence
 from penfree.sequence import Obstacle, Sequence
 
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(7)
+RNG_SEED = 7  # seed of the shared `rng` fixture (tests/conftest.py)
 
 
 def scene_arrays(rng, dtype, kind="triangles"):

@@ -13,9 +13,7 @@ from penfree.formats.obj import read_obj
 from penfree.sequence import Sequence
 
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(3)
+RNG_SEED = 3  # seed of the shared `rng` fixture (tests/conftest.py)
 
 
 def _seq(rng, dtype=np.float64, T=3, faces=True, edges=True):

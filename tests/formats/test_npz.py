@@ -10,9 +10,7 @@ from penfree.formats import read_sequence, write_sequence
 from penfree.sequence import Obstacle, Sequence
 
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(11)
+RNG_SEED = 11  # seed of the shared `rng` fixture (tests/conftest.py)
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64], ids=["float32", "float64"])

@@ -14,9 +14,7 @@ from penfree.formats.result import is_result_file, read_result, write_result
 from penfree.sequence import Sequence
 
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(13)
+RNG_SEED = 13  # seed of the shared `rng` fixture (tests/conftest.py)
 
 
 def _inputs(rng, dtype=np.float32, T=5, N=6):

@@ -12,9 +12,7 @@ from penfree.formats import xdmf
 from penfree.sequence import Obstacle, Sequence
 
 
-@pytest.fixture
-def rng():
-    return np.random.default_rng(5)
+RNG_SEED = 5  # seed of the shared `rng` fixture (tests/conftest.py)
 
 
 def _seq(rng, dtype=np.float64, topo="both"):

@@ -1,0 +1,261 @@
+"""Numba kernels of the fit stage (SPEC section 4): moments, centring, rank, applying the map.
+
+Pure functions over C-contiguous arrays; `penfree.core.fit.models` validates and converts
+before calling them. The moment and apply kernels exist in a serial and a parallel
+build of the same source (same fixed chunks, same summation order, so the same bits).
+They take flat ``(3N,)`` views of the ``(N, 3)`` positions and loop over an unsigned
+index: with 2-D indexing and a signed index, Numba's runtime strides and
+negative-index wraparound keep LLVM from vectorising (measured 2-4x slower).
+"""
+
+from __future__ import annotations
+
+import types
+
+import numpy as np
+from numba import njit, prange
+
+from ... import constants as K
+
+#: Layout of the moment vector the kernel returns (offsets into it).
+_W, _SP, _SD, _SPP, _SDP, _SDD, _SW2, _NMOM = 0, 1, 4, 7, 13, 22, 23, 24
+_SYM = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+
+
+def _moments_py(x_prev, x, w, use_w, n_chunks):
+    # Shift every vertex by the first vertex (and its displacement) before
+    # accumulating: second moments of coordinates 1e6 from the origin would
+    # otherwise cancel catastrophically when centred afterwards.
+    # x, x_prev are flat (3N,) views and the loop index is unsigned: a constant
+    # stride 3 and no negative-index wraparound let LLVM vectorise the loop.
+    n = x.shape[0] // 3
+    x00, x01, x02 = np.float64(x[0]), np.float64(x[1]), np.float64(x[2])
+    d00 = x00 - np.float64(x_prev[0])
+    d01 = x01 - np.float64(x_prev[1])
+    d02 = x02 - np.float64(x_prev[2])
+    part = np.zeros((n_chunks, _NMOM))
+    for k in prange(n_chunks):
+        lo = k * n // n_chunks
+        hi = (k + 1) * n // n_chunks
+        sw = sw2 = 0.0
+        sp0 = sp1 = sp2 = sd0 = sd1 = sd2 = 0.0
+        c00 = c11 = c22 = c01 = c02 = c12 = 0.0
+        g00 = g01 = g02 = g10 = g11 = g12 = g20 = g21 = g22 = 0.0
+        sdd = 0.0
+        for j in range(hi - lo):
+            i = np.uint64(lo + j)
+            i3 = np.uint64(3) * i
+            a0 = np.float64(x[i3])
+            a1 = np.float64(x[i3 + np.uint64(1)])
+            a2 = np.float64(x[i3 + np.uint64(2)])
+            p0, p1, p2 = a0 - x00, a1 - x01, a2 - x02
+            q0 = (a0 - np.float64(x_prev[i3])) - d00
+            q1 = (a1 - np.float64(x_prev[i3 + np.uint64(1)])) - d01
+            q2 = (a2 - np.float64(x_prev[i3 + np.uint64(2)])) - d02
+            wi = w[i] if use_w else 1.0
+            wp0, wp1, wp2 = wi * p0, wi * p1, wi * p2
+            sw += wi
+            sw2 += wi * wi
+            sp0 += wp0
+            sp1 += wp1
+            sp2 += wp2
+            sd0 += wi * q0
+            sd1 += wi * q1
+            sd2 += wi * q2
+            c00 += wp0 * p0
+            c11 += wp1 * p1
+            c22 += wp2 * p2
+            c01 += wp0 * p1
+            c02 += wp0 * p2
+            c12 += wp1 * p2
+            g00 += q0 * wp0
+            g01 += q0 * wp1
+            g02 += q0 * wp2
+            g10 += q1 * wp0
+            g11 += q1 * wp1
+            g12 += q1 * wp2
+            g20 += q2 * wp0
+            g21 += q2 * wp1
+            g22 += q2 * wp2
+            sdd += wi * (q0 * q0 + q1 * q1 + q2 * q2)
+        row = part[k]
+        row[0] = sw
+        row[1], row[2], row[3] = sp0, sp1, sp2
+        row[4], row[5], row[6] = sd0, sd1, sd2
+        row[7], row[8], row[9], row[10], row[11], row[12] = c00, c11, c22, c01, c02, c12
+        row[13], row[14], row[15] = g00, g01, g02
+        row[16], row[17], row[18] = g10, g11, g12
+        row[19], row[20], row[21] = g20, g21, g22
+        row[22] = sdd
+        row[23] = sw2
+    # Partials are summed in chunk order, so the result is independent of
+    # how many threads ran the chunks.
+    tot = np.zeros(_NMOM + 6)
+    for k in range(n_chunks):
+        for j in range(_NMOM):
+            tot[j] += part[k, j]
+    tot[_NMOM + 0], tot[_NMOM + 1], tot[_NMOM + 2] = x00, x01, x02
+    tot[_NMOM + 3], tot[_NMOM + 4], tot[_NMOM + 5] = d00, d01, d02
+    return tot
+
+
+# The same source compiled twice: a parallel region costs tens of microseconds
+# (far more on a loaded machine), so small inputs run the chunks serially. The
+# choice depends on N only, never on the thread count.
+def cache_variant(fn, name):
+    # Numba's on-disk cache is keyed by the function's qualified name; give
+    # each compiled variant its own, so the serial and parallel builds never
+    # share a cache entry.
+    f = types.FunctionType(fn.__code__, fn.__globals__, name, fn.__defaults__, fn.__closure__)
+    f.__qualname__ = name
+    return f
+
+
+#: Reassociation lets LLVM vectorise the per-chunk sums (about 2x); it is fixed
+#: at compile time, so results still do not depend on the thread count. No
+#: flag that assumes finite values: NaN/Inf inputs must still poison the sums.
+_FIT_FASTMATH = {"reassoc", "contract"}
+
+_moments_serial = njit(cache=True, fastmath=_FIT_FASTMATH)(cache_variant(_moments_py, "_moments_serial"))
+_moments_parallel = njit(cache=True, parallel=True, fastmath=_FIT_FASTMATH)(
+    cache_variant(_moments_py, "_moments_parallel"))
+
+
+def _moments_kernel(x_prev, x, w, use_w, n_chunks):
+    big = x.shape[0] >= K.PARALLEL_MIN_VERTICES
+    return (_moments_parallel if big else _moments_serial)(x_prev.reshape(-1), x.reshape(-1), w, use_w, n_chunks)
+
+
+@njit(cache=True)
+def _finish_kernel(tot, use_w, n):
+    # Centre the shifted sums: C = Spp - Sp mp^T, G = Sdp - Sd mp^T (the shift
+    # by the first vertex keeps these differences free of large cancellation).
+    f = np.empty(28)
+    W = tot[_W]
+    mp = tot[_SP:_SP + 3] / W
+    mq = tot[_SD:_SD + 3] / W
+    f[0] = W
+    tr = 0.0
+    for a in range(3):
+        f[1 + a] = tot[_NMOM + a] + mp[a]
+        f[4 + a] = tot[_NMOM + 3 + a] + mq[a]
+    for j in range(6):
+        a, b = _SYM[j]
+        cab = tot[_SPP + j] - 0.5 * (tot[_SP + a] * mp[b] + tot[_SP + b] * mp[a])
+        f[7 + 3 * a + b] = cab
+        f[7 + 3 * b + a] = cab
+        if a == b:
+            tr += cab
+    for a in range(3):
+        for b in range(3):
+            f[16 + 3 * a + b] = tot[_SDP + 3 * a + b] - tot[_SD + a] * mp[b]
+    f[25] = max(tot[_SDD] - (tot[_SD] * mq[0] + tot[_SD + 1] * mq[1] + tot[_SD + 2] * mq[2]), 0.0)
+    f[26] = W * W / tot[_SW2] if use_w else float(n)
+    f[27] = max(abs(f[1]), abs(f[2]), abs(f[3])) + np.sqrt(max(tr, 0.0) / W)
+    return f
+
+
+@njit(cache=True)
+def _subspace_kernel(C, G, qq, n_eff, floor, rtol, tol):
+    lam, E = np.linalg.eigh(C)
+    keep = np.zeros(3, dtype=np.bool_)
+    if not lam[2] > 0:
+        return lam, E, keep
+    r = 0
+    for k in range(3):
+        keep[k] = lam[k] > rtol * lam[2] and lam[k] > floor
+        r += keep[k]
+    if r == 0 or not np.isfinite(tol):
+        return lam, E, keep
+    # Residual of the affine fit on the kept directions: the directions are
+    # C-orthogonal, so each explains |G e|^2 / lam of the squared residual.
+    explained = 0.0
+    for k in range(3):
+        if keep[k]:
+            g0 = G[0, 0] * E[0, k] + G[0, 1] * E[1, k] + G[0, 2] * E[2, k]
+            g1 = G[1, 0] * E[0, k] + G[1, 1] * E[1, k] + G[1, 2] * E[2, k]
+            g2 = G[2, 0] * E[0, k] + G[2, 1] * E[1, k] + G[2, 2] * E[2, k]
+            explained += (g0 * g0 + g1 * g1 + g2 * g2) / lam[k]
+    dof = 3.0 * (n_eff - 1.0 - r)
+    sigma2 = max(qq - explained, 0.0) / dof if dof > 0 else 0.0
+    for k in range(3):
+        keep[k] = keep[k] and sigma2 <= tol * tol * lam[k]
+    return lam, E, keep
+
+
+def _apply_py(x_prev, x, D, u, c, out, evaluate, out32, n_chunks):
+    # x_def = x + D (x - c) + u in float64, then cast on store. With
+    # `evaluate`, also residual sums of the *stored* x_def (its float32
+    # rounding when `out32`) and of x against x_pred = 2x - x_prev, formed as
+    # d - (x_def - x) to keep far-from-origin digits. Never reads `out` back,
+    # so the loop carries no memory dependence through it.
+    # Flat (3N,) views and an unsigned index, as in _moments_py.
+    n = x.shape[0] // 3
+    d00, d01, d02 = D[0, 0], D[0, 1], D[0, 2]
+    d10, d11, d12 = D[1, 0], D[1, 1], D[1, 2]
+    d20, d21, d22 = D[2, 0], D[2, 1], D[2, 2]
+    u0, u1, u2 = u[0], u[1], u[2]
+    c0, c1, c2 = c[0], c[1], c[2]
+    part = np.zeros((n_chunks, 4))
+    for k in prange(n_chunks):
+        lo = k * n // n_chunks
+        hi = (k + 1) * n // n_chunks
+        s_def = s_base = 0.0
+        m_def = m_base = np.uint64(0)
+        for j in range(hi - lo):
+            i = np.uint64(lo + j)
+            i3 = np.uint64(3) * i
+            a0 = np.float64(x[i3])
+            a1 = np.float64(x[i3 + np.uint64(1)])
+            a2 = np.float64(x[i3 + np.uint64(2)])
+            p0, p1, p2 = a0 - c0, a1 - c1, a2 - c2
+            v0 = a0 + (d00 * p0 + d01 * p1 + d02 * p2 + u0)
+            v1 = a1 + (d10 * p0 + d11 * p1 + d12 * p2 + u1)
+            v2 = a2 + (d20 * p0 + d21 * p1 + d22 * p2 + u2)
+            out[i3] = v0
+            out[i3 + np.uint64(1)] = v1
+            out[i3 + np.uint64(2)] = v2
+            if evaluate:
+                if out32:
+                    v0 = np.float64(np.float32(v0))
+                    v1 = np.float64(np.float32(v1))
+                    v2 = np.float64(np.float32(v2))
+                q0 = a0 - np.float64(x_prev[i3])
+                q1 = a1 - np.float64(x_prev[i3 + np.uint64(1)])
+                q2 = a2 - np.float64(x_prev[i3 + np.uint64(2)])
+                e0 = q0 - (v0 - a0)
+                e1 = q1 - (v1 - a1)
+                e2 = q2 - (v2 - a2)
+                ed = e0 * e0 + e1 * e1 + e2 * e2
+                eb = q0 * q0 + q1 * q1 + q2 * q2
+                s_def += ed
+                s_base += eb
+                # Maxima of the bit patterns: for non-negative floats the unsigned
+                # order is the float order, and NaN (either sign) compares above
+                # every number, so it still poisons the result. Unlike a float
+                # max, an integer max reduction vectorises without fast-math flags
+                # that assume finite values (about 4x for this loop).
+                m_def = max(m_def, np.float64(ed).view(np.uint64))
+                m_base = max(m_base, np.float64(eb).view(np.uint64))
+        part[k, 0], part[k, 2] = s_def, s_base
+        part[k, 1], part[k, 3] = np.uint64(m_def).view(np.float64), np.uint64(m_base).view(np.float64)
+    res = np.zeros(4)
+    m_def = m_base = np.uint64(0)
+    for k in range(n_chunks):
+        res[0] += part[k, 0]
+        res[2] += part[k, 2]
+        m_def = max(m_def, np.float64(part[k, 1]).view(np.uint64))
+        m_base = max(m_base, np.float64(part[k, 3]).view(np.uint64))
+    res[1], res[3] = np.uint64(m_def).view(np.float64), np.uint64(m_base).view(np.float64)
+    return res
+
+
+_apply_serial = njit(cache=True, fastmath=_FIT_FASTMATH)(cache_variant(_apply_py, "_apply_serial"))
+_apply_parallel = njit(cache=True, parallel=True, fastmath=_FIT_FASTMATH)(cache_variant(_apply_py, "_apply_parallel"))
+
+
+def _apply_kernel(x_prev, x, D, u, c, out, evaluate, n_chunks):
+    big = x.shape[0] >= K.PARALLEL_MIN_VERTICES
+    out32 = out.dtype == np.float32
+    return (_apply_parallel if big else _apply_serial)(x_prev.reshape(-1), x.reshape(-1), D, u, c, out.reshape(-1),
+                                                       evaluate, out32, n_chunks)

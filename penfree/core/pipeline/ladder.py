@@ -1,0 +1,233 @@
+"""Speed against error over the model ladder (SPEC sections 4 and 7).
+
+Every step of a sequence is re-fitted with each model of the ladder (translation,
+rigid, similarity, affine, auto) to the same target, and each model is scored by its
+mean fit time, its residual to the simulator's next frame and to the prediction, the
+trust-region figures of its deformed state against the next frame (bounds recomputed
+at that state: the *actual* figures, not the selection's predictions), and its
+certificate margin. The ``baseline`` row is the recorded state itself (no map); the
+``x_pred`` row is the unsafe ideal (the prediction itself, no certificate), a ceiling.
+``auto`` is the collision-aware choice of `penfree.core.fit.auto.select_step` when the scene has
+topology (the residual-only choice of `fit_step` otherwise).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ...constants import DEFAULT_GAMMA, DEFAULT_REPLAY_CAP
+from ..trust.stats import query_radius, ratio_stats, replay_passes, residual_summary
+from ..trust.summary import finite_mean
+
+#: The ladder, cheapest first (SPEC section 4), then the automatic choice.
+LADDER_MODELS = ("translation", "rigid", "similarity", "affine", "auto")
+
+#: Untimed calls per model before the timed ones (Numba compiles some paths lazily).
+LADDER_WARMUP_CALLS = 2
+
+#: Per-step figures kept for every model (arrays (S,) in ``ladder["steps"][model]``).
+LADDER_FIGURES = ("fit_ms", "residual_next_rms", "residual_pred_rms", "k_1pct_next", "k_any_next",
+                  "hit_rate_next", "certificate_margin", "replay_k_1pct_next", "replay_k_any_next")
+
+#: Fixed models `auto` is compared with when counting how often it chose the best.
+FIXED_MODELS = ("translation", "rigid", "similarity", "affine")
+
+
+def _pooled_rms(a):
+    a = np.asarray(a, dtype=np.float64)
+    a = a[np.isfinite(a)]
+    return math.sqrt(float(np.mean(a * a))) if a.size else math.nan
+
+
+def _median(a):
+    a = np.asarray(a, dtype=np.float64)
+    a = a[np.isfinite(a)]
+    return float(np.median(a)) if a.size else math.nan
+
+
+def _min(a):
+    a = np.asarray(a, dtype=np.float64)
+    a = a[~np.isnan(a)]
+    return float(a.min()) if a.size else math.nan
+
+
+def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, weights=None, margins=None,
+                 models=LADDER_MODELS, projection="auto", gamma=DEFAULT_GAMMA, bounds_fn=None, fit_fn=None,
+                 ceiling=True, replay=False, replay_cap=DEFAULT_REPLAY_CAP, components=None,
+                 progress=None) -> dict:
+    """Re-fit every step with each model and score speed against error.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float
+        Recorded frames.
+    frames : (S,) int
+        Frame index `s` of each step (the fit uses `positions[s-1]`, `positions[s]`).
+    edges : (E, 2) int, faces : (F, 3) int, thickness : float
+        Topology and contact distance for the trust-region bounds.
+    weights : (N,) float, optional
+        Fit weights.
+    margins : (S,) float, optional
+        Certificate margin per step (e.g. ``steps/margin_required`` of a result);
+        default 0. A margin >= 1 (the deform pipeline's "no shape change may be
+        certified" marker) fits a translation for every model of that step.
+    models : sequence of str
+        Ladder models, passed to `fit_step` as ``model``.
+    projection : str
+        Projection mode passed to `fit_step`.
+    gamma : float
+        OGC gamma_p of the bounds.
+    bounds_fn : callable, optional
+        ``bounds_fn(x (N, 3) float64, query_radius) -> (N,) float64``; default
+        `trust_region_bounds` with this topology.
+    fit_fn : callable, optional
+        Stand-in for `penfree.core.fit.step.fit_step` (same signature and result fields).
+    components : (N,) int, optional
+        Object labels for the optional ``"per-component"`` model (default: connected
+        components of the topology). That model runs the CCD between objects every step.
+    ceiling : bool
+        Add the ``x_pred`` row (the unsafe ideal: the prediction itself).
+    replay, replay_cap
+        Also the replay estimates (one bound computation per pass, model and step).
+    progress : callable, optional
+        Called once per finished step.
+
+    Returns
+    -------
+    dict
+        ``models`` (list, ``"baseline"`` first), ``n_steps``, ``n_steps_next``,
+        ``rows``: one dict per model with ``model``, ``fit_ms_mean``, ``fit_ms_median``,
+        ``residual_next_rms``, ``residual_pred_rms`` (RMS pooled over steps),
+        ``k_1pct_next``, ``k_any_next``, ``hit_rate_next`` (means over the steps with a
+        next frame; bounds at that model's deformed state with the step's `r_q`),
+        ``certificate_margin_mean``, ``certificate_margin_min``, ``models_used``
+        ({name: steps}, what ``auto`` picked or a fallback used);
+        ``steps``: {model: {figure: (S,) float64}} for the figures in `LADDER_FIGURES`;
+        ``auto_best_rate``: fraction of the steps with a next frame on which ``auto``'s
+        actual K_1pct was the smallest of baseline and the fixed models (NaN without
+        ``auto``).
+
+    Notes
+    -----
+    Each model is fitted on the first step before timing starts, so JIT compilation
+    does not count as fit time. The fit time is wall time around the call (fit +
+    projection + certificate + writing `x_def`); on a shared machine single calls can
+    spike, which is why the median is reported beside the mean. Cost: one bound computation per model and
+    step with a next frame, plus one for the baseline.
+    """
+    if fit_fn is None:
+        from ..fit.step import fit_step as fit_fn
+    positions = np.asarray(positions)
+    frames = np.asarray(frames, dtype=np.int64)
+    T, S = positions.shape[0], frames.shape[0]
+    margins = np.zeros(S) if margins is None else np.asarray(margins, dtype=np.float64)
+    if bounds_fn is None:
+        from ..trust.bounds import trust_region_bounds
+
+        def bounds_fn(x, r_q):
+            return trust_region_bounds(x, edges=edges, faces=faces, thickness=thickness, gamma=gamma,
+                                       query_radius=r_q)
+
+    names = ["baseline", *models, *(["x_pred"] if ceiling else [])]
+    if "per-component" in models:
+        from .components import component_labels, per_component_step
+
+        labels = component_labels(positions.shape[1], edges, faces, components)
+    select = "auto" in models and (edges is not None and len(edges) or faces is not None and len(faces))
+    if select:
+        from ..fit.auto import select_step
+        from ..trust.bounds import scene_arrays, per_vertex_separation
+
+        _, E_sel, F_sel = scene_arrays(positions[0], edges, faces)
+    per = {m: {f: np.full(S, np.nan) for f in LADDER_FIGURES} for m in names}
+    used = {m: {} for m in names}
+    if S:
+        for m in models:  # warm-up: keep JIT compilation out of the timings
+            for _ in range(LADDER_WARMUP_CALLS if m not in ("auto", "per-component") else 0):
+                fit_fn(positions[frames[0] - 1], positions[frames[0]], weights=weights, model=m,
+                       projection=projection, margin=0.0)
+    for i, s in enumerate(frames):
+        x_prev, x = positions[s - 1], positions[s]
+        x64 = np.asarray(x, dtype=np.float64)
+        x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
+        x_next = np.asarray(positions[s + 1], dtype=np.float64) if s + 1 < T else None
+        r_q = query_radius(x64, x_pred, thickness)
+        states = {"baseline": (x64, 0.0, math.nan)}
+        margin = float(margins[i])
+        for m in models:
+            model, mg = (m, margin) if margin < 1.0 else ("translation", 0.0)
+            if model == "per-component":
+                t0 = time.perf_counter()
+                r = per_component_step(x_prev, x, labels, edges=edges, faces=faces, thickness=thickness,
+                                       weights=weights, margin=mg, projection=projection)
+            elif select and model == "auto":
+                # The separations at x are the simulator's last detection: not fit time.
+                d_start = per_vertex_separation(x64, E_sel, F_sel, r_q)
+                t0 = time.perf_counter()
+                r, _ = select_step(x_prev, x, d_start, r_q=r_q, thickness=thickness, gamma=gamma,
+                                   weights=weights, margin=mg, projection=projection)
+            else:
+                t0 = time.perf_counter()
+                r = fit_fn(x_prev, x, weights=weights, model=model, projection=projection, margin=mg)
+            dt_ms = (time.perf_counter() - t0) * 1e3
+            name = f"{len(np.unique(r.group))} groups" if model == "per-component" else r.model
+            used[m][name] = used[m].get(name, 0) + 1
+            states[m] = (np.asarray(r.x_def, dtype=np.float64), dt_ms, float(r.certificate_margin))
+        if ceiling:
+            states["x_pred"] = (x_pred, math.nan, math.nan)
+        for m, (x_s, dt_ms, cm) in states.items():
+            row = per[m]
+            row["fit_ms"][i], row["certificate_margin"][i] = dt_ms, cm
+            row["residual_pred_rms"][i] = residual_summary(x_s, x_pred)[0]
+            if x_next is not None:
+                row["residual_next_rms"][i] = residual_summary(x_s, x_next)[0]
+                b = np.zeros(x_s.shape[0]) if r_q <= 0 else bounds_fn(x_s, r_q)
+                rs = ratio_stats(x_s, x_next, b)
+                row["k_1pct_next"][i], row["k_any_next"][i] = rs["k_1pct"], rs["k_any"]
+                row["hit_rate_next"][i] = rs["hit_rate"]
+                if replay:
+                    rp = replay_passes(x_s, x_next, lambda z: bounds_fn(z, r_q), cap=replay_cap, b0=b)
+                    row["replay_k_1pct_next"][i], row["replay_k_any_next"][i] = rp["k_1pct"], rp["k_any"]
+        if progress is not None:
+            progress()
+    rows = []
+    for m in names:
+        p = per[m]
+        rows.append({
+            "model": m,
+            "fit_ms_mean": finite_mean(p["fit_ms"]),
+            "fit_ms_median": _median(p["fit_ms"]),
+            "residual_next_rms": _pooled_rms(p["residual_next_rms"]),
+            "residual_pred_rms": _pooled_rms(p["residual_pred_rms"]),
+            "k_1pct_next": finite_mean(p["k_1pct_next"]),
+            "k_any_next": finite_mean(p["k_any_next"]),
+            "k_1pct_next_sum": _sum(p["k_1pct_next"]),
+            "replay_k_1pct_next": finite_mean(p["replay_k_1pct_next"]),
+            "replay_k_any_next": finite_mean(p["replay_k_any_next"]),
+            "hit_rate_next": finite_mean(p["hit_rate_next"]),
+            "certificate_margin_mean": finite_mean(p["certificate_margin"]),
+            "certificate_margin_min": _min(p["certificate_margin"]),
+            "models_used": dict(sorted(used[m].items())),
+        })
+    n_next = int(np.count_nonzero(frames + 1 < T))
+    return {"models": names, "n_steps": int(S), "n_steps_next": n_next, "rows": rows, "steps": per,
+            "auto_best_rate": _auto_best_rate(per, models)}
+
+
+def _auto_best_rate(per, models):
+    if "auto" not in models:
+        return math.nan
+    rivals = ["baseline", *[m for m in FIXED_MODELS if m in per]]
+    best = np.min([per[m]["k_1pct_next"] for m in rivals], axis=0)
+    auto = per["auto"]["k_1pct_next"]
+    ok = np.isfinite(auto)
+    return float(np.mean(auto[ok] <= best[ok])) if ok.any() else math.nan
+
+
+def _sum(a):
+    a = np.asarray(a, dtype=np.float64)
+    a = a[np.isfinite(a)]
+    return float(a.sum()) if a.size else math.nan

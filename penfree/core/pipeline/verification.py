@@ -1,0 +1,254 @@
+"""Verification of whole sequences and deform results, and the certificate fast path.
+
+`verify_file` dispatches on the file: a deform result (``steps/`` present) is
+checked step by step from ``positions[frame]`` to ``steps/deformed`` together
+with the exact certificate of ``steps/A``; a raw sequence from frame s to s + 1.
+The CLI (`penfree verify`) only parses, calls `verify_file` and prints.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...constants import DEFAULT_MAX_PAIRS
+from ...errors import InputError
+from ..fit.certificate import certify
+from ..verify.affine import verify_affine_step
+from ..verify.path import VerifyResult, check_thickness, verify_step
+
+MODES = ("auto", "ccd", "certificate")
+@dataclass
+class StepReport:
+    """One verified step: start frame, verdict, and (deform results) the certificate."""
+
+    frame: int
+    target: str
+    result: VerifyResult
+    certificate: bool | None = None
+    margin: float | None = None
+    certificate_claimed: bool = False
+
+    @property
+    def ok(self) -> bool:
+        # a certificate the file claims must hold; an unclaimed one (projection "none") is informational
+        return self.result.ok and not (self.certificate_claimed and self.certificate is False)
+
+    def to_dict(self) -> dict:
+        d = {"frame": self.frame, "target": self.target, "ok": self.ok, **self.result.to_dict()}
+        d["ok"] = self.ok
+        if self.certificate is not None or self.certificate_claimed:
+            d.update(certificate=self.certificate, certificate_margin=self.margin,
+                     certificate_claimed=self.certificate_claimed)
+        return d
+
+
+@dataclass
+class VerifyReport:
+    """All steps of a file."""
+
+    origin: str
+    kind: str
+    thickness: float
+    mode: str
+    steps: list = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return all(s.ok for s in self.steps)
+
+    @property
+    def n_failed(self) -> int:
+        return sum(not s.ok for s in self.steps)
+
+    def to_dict(self) -> dict:
+        return {"file": self.origin, "kind": self.kind, "thickness": self.thickness, "mode": self.mode,
+                "ok": self.ok, "n_steps": len(self.steps), "n_failed": self.n_failed,
+                "steps": [s.to_dict() for s in self.steps]}
+
+
+def _selected(n_frames, frames):
+    if frames is None:
+        return set(range(n_frames))
+    start, stop = frames
+    return set(range(n_frames)[slice(start, stop)])
+
+
+def _obstacles(seq, s0, s1):
+    return [(ob.frame(s0), ob.frame(s1), ob.faces, ob.edges) for ob in seq.obstacles], [ob.name for ob in seq.obstacles]
+
+
+def verify_sequence(seq, *, thickness=None, frames=None, max_pairs=DEFAULT_MAX_PAIRS, progress=None):
+    """Verify every step s -> s + 1 of a raw sequence (both frames selected).
+
+    Parameters
+    ----------
+    seq : Sequence
+        Validated.
+    thickness : float or None
+        None: the sequence's thickness.
+    frames : (start, stop) or None
+        Python slice of frame indices.
+    progress : callable or None
+        Called once per step.
+
+    Returns
+    -------
+    VerifyReport
+    """
+    h = check_thickness(seq.thickness if thickness is None else thickness)
+    sel = _selected(seq.n_frames, frames)
+    rep = VerifyReport(seq.origin, "sequence", h, "ccd")
+    clean_frame = None  # end frame of the last step that verified ok
+    for s in range(seq.n_frames - 1):
+        if s not in sel or s + 1 not in sel:
+            continue
+        obs, names = _obstacles(seq, s, s + 1)
+        # frame s is the end state of step s - 1: if that verified ok, it is intersection-free
+        r = verify_step(seq.positions[s], seq.positions[s + 1], edges=seq.edges, faces=seq.faces, thickness=h,
+                        obstacles=obs, obstacle_names=names, max_pairs=max_pairs,
+                        start_intersections=clean_frame != s)
+        clean_frame = s + 1 if r.ok else None
+        rep.steps.append(StepReport(s, f"frame {s + 1}", r))
+        if progress is not None:
+            progress()
+    return rep
+
+
+def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DEFAULT_MAX_PAIRS, progress=None):
+    """Verify every step of a deform result: positions[frame] -> steps/deformed, and steps/A.
+
+    Parameters
+    ----------
+    res : DeformResult
+    thickness : float or None
+        None: the sequence's thickness.
+    frames : (start, stop) or None
+        Steps whose frame lies in this slice.
+    mode : {"auto", "ccd", "certificate"}
+        ``ccd``: full CCD for every step. ``auto``: the certificate proof of
+        `verify_affine_step` where it applies (no obstacles), else full CCD.
+        ``certificate``: the certificate proof only; a step it cannot prove
+        is reported as not ok (never as safe). All three are sound.
+    progress : callable or None
+
+    Returns
+    -------
+    VerifyReport
+
+    Notes
+    -----
+    The certificate reported per step is the exact ``certify(A, margin)`` with
+    the margin deform uses (thickness / d0, d0 the smallest start gap; 0 when
+    thickness is 0). A step fails when its path check fails, or when the file
+    claims a certificate (finite ``certificate_margin`` >= 0) that does not
+    hold. Obstacles are held at the step's start frame (deform moves only the
+    scene).
+    """
+    from .deform import step_margin
+
+    if mode not in MODES:
+        raise InputError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
+    seq = res.sequence
+    h = check_thickness(seq.thickness if thickness is None else thickness)
+    sel = _selected(seq.n_frames, frames)
+    st = res.steps
+    if "deformed" not in st:
+        raise InputError(f"{res.origin} holds no steps/deformed to verify in {res.origin}:/steps/deformed")
+    claimed = st.get("certificate_margin")
+    rep = VerifyReport(res.origin, "result", h, mode)
+    for k, s in enumerate(np.asarray(st["frame"]).tolist()):
+        if s not in sel:
+            continue
+        x = np.asarray(seq.positions[s], dtype=np.float64)
+        x_def = np.asarray(st["deformed"][k], dtype=np.float64)
+        A, b = np.asarray(st["A"][k], np.float64), np.asarray(st["b"][k], np.float64)
+        m, _ = step_margin(x, seq, h, None)
+        per_component = not np.isfinite(A).all()
+        if per_component:
+            # Several maps (deform --model per-component): each must be certified, and
+            # only the full CCD can prove the paths between components.
+            maps = _component_maps(res, k)
+            cert = m is not None and all(certify(A_c, m) for A_c in maps)
+        else:
+            cert = certify(A, m) if m is not None else bool(np.array_equal(A, np.eye(3)))
+        r = None
+        if mode != "ccd" and not seq.obstacles and not per_component:
+            r = verify_affine_step(x, x_def, A, b, edges=seq.edges, faces=seq.faces, thickness=h, max_pairs=max_pairs)
+        if r is None and mode == "certificate":
+            r = VerifyResult(ok=False, start_ok=True, min_separation=0.0, method="certificate")
+        if r is None:
+            obs, names = _obstacles(seq, s, s)
+            r = verify_step(x, x_def, edges=seq.edges, faces=seq.faces, thickness=h, obstacles=obs,
+                            obstacle_names=names, max_pairs=max_pairs)
+        is_claimed = claimed is not None and bool(np.isfinite(claimed[k]) and claimed[k] >= 0)
+        rep.steps.append(StepReport(s, "deformed", r, cert, None if m is None else float(m), is_claimed))
+        if progress is not None:
+            progress()
+    return rep
+
+
+def _component_maps(res, k):
+    """Distinct per-component maps of step k (``component_maps/A``), for a step whose
+    ``steps/A`` is NaN; a NaN A without them is unusable input."""
+    comp = res.groups.get("component_maps", {})
+    if "A" not in comp or not np.isfinite(comp["A"][k]).all():
+        raise InputError(f"steps/A of step {k} is not finite and no finite per-component maps were found "
+                         f"in {res.origin}:/component_maps/A")
+    return list(np.unique(np.asarray(comp["A"][k], dtype=np.float64), axis=0))
+
+
+def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEFAULT_MAX_PAIRS, progress=None):
+    """Verify a deform result or a raw sequence file (any readable format).
+
+    Parameters
+    ----------
+    path : str or Path
+    thickness : float or None
+        None: the file's thickness attribute, else 0.
+    frames : (start, stop) or None
+    mode : {"auto", "ccd", "certificate"}
+        For deform results (see `verify_result`); raw sequences always use CCD.
+    max_pairs : int
+    progress : callable or None
+        Called once per step.
+
+    Returns
+    -------
+    VerifyReport
+
+    Examples
+    --------
+    >>> rep = verify_file("deformed.h5")                 # doctest: +SKIP
+    >>> rep.ok, rep.n_failed                             # doctest: +SKIP
+    (True, 0)
+    """
+    from ...formats import read_sequence
+    from ...formats.result import is_result_file, read_result
+
+    if mode not in MODES:
+        raise InputError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
+    if is_result_file(path):
+        return verify_result(read_result(path), thickness=thickness, frames=frames, mode=mode,
+                             max_pairs=max_pairs, progress=progress)
+    seq = read_sequence(path)
+    return verify_sequence(seq, thickness=thickness, frames=frames, max_pairs=max_pairs, progress=progress)
+
+
+def n_steps(path, frames=None) -> int:
+    """Number of steps `verify_file` will check (for a progress bar); 0 if unknown."""
+    try:
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            if "steps/frame" in f:
+                fr = f["steps/frame"][()]
+                sel = _selected(f["positions"].shape[0], frames)
+                return int(sum(int(s) in sel for s in fr))
+            T = f["positions"].shape[0]
+            sel = _selected(T, frames)
+            return sum(s in sel and s + 1 in sel for s in range(T - 1))
+    except Exception:  # not HDF5 or unreadable here: the real reader reports it
+        return 0
+

@@ -1,0 +1,235 @@
+"""Broad phase against its O(n^2) numpy oracle (sets must be equal), on small
+rod and cloth scenes, static and swept, with inflation, fast-moving
+primitives, coincident boxes, sparse (hashed) and dense grids."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from penfree.core.contact import broad_phase as bp
+from penfree.core.contact.broad_phase import (
+    edge_edge_candidates,
+    edge_edge_candidates_between,
+    vertex_face_candidates,
+    vertex_face_candidates_between,
+)
+from penfree.core.topology import edges_from_faces
+from penfree.errors import InputError
+
+from oracles import (
+    edge_edge_candidates_between_brute,
+    edge_edge_candidates_brute,
+    vertex_face_candidates_between_brute,
+    vertex_face_candidates_brute,
+)
+
+
+RNG_SEED = 7  # seed of the shared `rng` fixture (tests/conftest.py)
+
+
+def cloth(n, rng, amp=0.2):
+    """n x n sheet, wavy and jittered, two triangles per quad."""
+    u = np.linspace(0.0, 1.0, n)
+    X, Y = np.meshgrid(u, u, indexing="ij")
+    Z = amp * np.sin(3 * np.pi * X) * np.cos(2 * np.pi * Y)
+    V = np.stack([X, Y, Z], -1).reshape(-1, 3) + rng.normal(scale=0.1 / n, size=(n * n, 3))
+    idx = np.arange(n * n).reshape(n, n)
+    a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+    c, d = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    F = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    return V, F
+
+
+def rods(n_rods, n_per, rng):
+    """Wiggly polylines in a bundle, crossing each other."""
+    t = np.linspace(0.0, 1.0, n_per)
+    Vs, Es = [], []
+    for r in range(n_rods):
+        c = rng.uniform(0, 0.2, 2)
+        ph = rng.uniform(0, 2 * np.pi)
+        Vs.append(np.stack([c[0] + 0.05 * np.cos(9 * t + ph), c[1] + 0.05 * np.sin(9 * t + ph), t], 1))
+        Es.append(np.stack([np.arange(n_per - 1), np.arange(1, n_per)], 1) + r * n_per)
+    return np.concatenate(Vs), np.concatenate(Es)
+
+
+def _fast_movers(V, rng, k=3, scale=0.7):
+    V1 = V + rng.normal(scale=0.004, size=V.shape)
+    idx = rng.choice(V.shape[0], k, replace=False)
+    V1[idx] += rng.normal(scale=scale, size=(k, 3))
+    return V1
+
+
+def _assert_valid(pairs, self_query):
+    assert pairs.dtype == np.int64 and pairs.ndim == 2 and pairs.shape[1] == 2
+    if len(pairs):
+        order = np.lexsort((pairs[:, 1], pairs[:, 0]))
+        assert np.array_equal(order, np.arange(len(pairs))), "rows not sorted"
+        assert len(np.unique(pairs, axis=0)) == len(pairs), "duplicate rows"
+        if self_query:
+            assert np.all(pairs[:, 0] < pairs[:, 1])
+
+
+MOTIONS = ["static", "swept", "fast-moving"]
+
+
+def _motion(kind, V, rng):
+    if kind == "static":
+        return V.copy()
+    if kind == "swept":
+        return V + rng.normal(scale=0.01, size=V.shape)
+    return _fast_movers(V, rng)
+
+
+@pytest.mark.parametrize("inflation", [0.0, 0.003, 0.05], ids=["no-inflation", "small", "large"])
+@pytest.mark.parametrize("motion", MOTIONS)
+def test_rods_edge_edge(rng, motion, inflation):
+    V, E = rods(12, 40, rng)
+    V1 = _motion(motion, V, rng)
+    got = edge_edge_candidates(V, V1, E, inflation)
+    want = edge_edge_candidates_brute(V, V1, E, inflation)
+    _assert_valid(got, True)
+    assert len(want) > 0
+    np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("inflation", [0.0, 0.01], ids=["no-inflation", "inflated"])
+@pytest.mark.parametrize("motion", MOTIONS)
+def test_cloth(rng, motion, inflation):
+    V, F = cloth(18, rng)
+    E = edges_from_faces(F)
+    V1 = _motion(motion, V, rng)
+    ee = edge_edge_candidates(V, V1, E, inflation)
+    vf = vertex_face_candidates(V, V1, F, inflation)
+    _assert_valid(ee, True)
+    _assert_valid(vf, False)
+    np.testing.assert_array_equal(ee, edge_edge_candidates_brute(V, V1, E, inflation))
+    np.testing.assert_array_equal(vf, vertex_face_candidates_brute(V, V1, F, inflation))
+    assert len(ee) > 0 and len(vf) > 0
+
+
+def test_big_boxes_take_the_brute_force_path(rng):
+    # A handful of vertices jumping across the scene: their boxes cover many
+    # cells, stay out of the grid, are tested against every box, and every
+    # pair must still be found exactly once.
+    V, E = rods(10, 60, rng)
+    V1 = _fast_movers(V, rng, k=4, scale=2.0)
+    lo, hi = bp._box_arrays(V, V1, E, 0.0)
+    plan = bp._Plan(lo, hi, E, lo, hi, E, True)
+    assert plan.bigB.size > 0 and (~plan.smallA).sum() > 0
+    np.testing.assert_array_equal(plan.pairs(), edge_edge_candidates_brute(V, V1, E))
+
+
+def test_sparse_scene_uses_hashed_grid(rng):
+    # Two clusters 1e4 apart: a dense cell table would be huge, so the
+    # hashed table is used; results must not change.
+    V, E = rods(6, 30, rng)
+    V = np.concatenate([V, V + 1e4])
+    E = np.concatenate([E, E + len(V) // 2])
+    lo, hi = bp._box_arrays(V, V, E, 0.01)
+    plan = bp._Plan(lo, hi, E, lo, hi, E, True)
+    assert plan.bits >= 0  # hashed, not dense
+    np.testing.assert_array_equal(plan.pairs(), edge_edge_candidates_brute(V, V, E, 0.01))
+
+
+def test_coincident_boxes(rng):
+    # Every vertex at the same point: all boxes are identical and of zero
+    # extent; every non-adjacent pair overlaps.
+    V = np.zeros((30, 3)) + 0.5
+    E = np.stack([np.arange(29), np.arange(1, 30)], 1)
+    F = np.stack([np.arange(28), np.arange(1, 29), np.arange(2, 30)], 1)
+    ee = edge_edge_candidates(V, V, E)
+    assert len(ee) == 29 * 28 // 2 - 28  # all pairs minus the 28 adjacent ones
+    np.testing.assert_array_equal(ee, edge_edge_candidates_brute(V, V, E))
+    np.testing.assert_array_equal(vertex_face_candidates(V, V, F), vertex_face_candidates_brute(V, V, F))
+    # duplicated geometry under different vertex indices is not adjacent
+    V2 = np.concatenate([V, V])
+    E2 = np.concatenate([E, E + 30])
+    assert len(edge_edge_candidates(V2, V2, E2)) == 58 * 57 // 2 - 56
+
+
+def test_touching_boxes_count():
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [1.0, 0, 0], [2, 0, 0], [2.0 + 1e-12, 0, 0], [3, 0, 0]])
+    E = np.array([[0, 1], [2, 3], [4, 5]])
+    np.testing.assert_array_equal(edge_edge_candidates(V, V, E), [[0, 1]])
+    # an inflation of half the gap closes it
+    assert [1, 2] in edge_edge_candidates(V, V, E, 1e-12).tolist()
+
+
+def test_adjacency_rule():
+    # Edges 0-1 and 1-2 overlap but share vertex 1; a face never pairs with its own vertices.
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0.3, 0.0, 0]])
+    assert edge_edge_candidates(V, V, [[0, 1], [1, 2], [2, 0]]).shape == (0, 2)
+    np.testing.assert_array_equal(vertex_face_candidates(V, V, [[0, 1, 2]]), [[3, 0]])
+    np.testing.assert_array_equal(
+        edge_edge_candidates_between(V, V, [[0, 1]], [[1, 2], [2, 3], [0, 1]]), [[0, 1]]
+    )
+
+
+def test_between_sets(rng):
+    V, F = cloth(12, rng)
+    Vo, Fo = cloth(8, rng)
+    Vo = Vo * 0.7 + [0.1, 0.1, 0.05]
+    n = len(V)
+    Vall = np.concatenate([V, Vo])
+    Fo = Fo + n
+    V1 = _motion("fast-moving", Vall, rng)
+    EA, EB = edges_from_faces(F), edges_from_faces(Fo)
+    got = edge_edge_candidates_between(Vall, V1, EA, EB, 0.01)
+    assert len(got) > 0
+    np.testing.assert_array_equal(got, edge_edge_candidates_between_brute(Vall, V1, EA, EB, 0.01))
+    cloth_v = np.arange(n)
+    got = vertex_face_candidates_between(Vall, V1, cloth_v, Fo, 0.01)
+    assert len(got) > 0 and np.all(got[:, 0] < n)
+    np.testing.assert_array_equal(got, vertex_face_candidates_between_brute(Vall, V1, cloth_v, Fo, 0.01))
+    obst_v = np.arange(n, len(Vall))[::-1]  # unsorted on purpose: output is still sorted
+    got = vertex_face_candidates_between(Vall, V1, obst_v, F, 0.01)
+    _assert_valid(got, False)
+    np.testing.assert_array_equal(got, vertex_face_candidates_between_brute(Vall, V1, obst_v, F, 0.01))
+
+
+def test_vertex_subset(rng):
+    V, F = cloth(10, rng)
+    sub = rng.choice(len(V), 30, replace=False)
+    got = vertex_face_candidates(V, V, F, 0.02, vertices=sub)
+    full = vertex_face_candidates(V, V, F, 0.02)
+    np.testing.assert_array_equal(got, full[np.isin(full[:, 0], sub)])
+
+
+def test_empty_inputs():
+    V = np.zeros((4, 3))
+    assert edge_edge_candidates(V, V, np.zeros((0, 2), int)).shape == (0, 2)
+    assert vertex_face_candidates(V, V, None).shape == (0, 2)
+    assert vertex_face_candidates(V, V, [[0, 1, 2]], vertices=[]).shape == (0, 2)
+
+
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda V: edge_edge_candidates(V, V[:3], [[0, 1]]), "V_t1 must have the shape"),
+        (lambda V: edge_edge_candidates(V, V, [[0, 9]]), r"E indices must lie in \[0, 4\)"),
+        (lambda V: edge_edge_candidates(V, V, [[0, 1]], -1.0), "inflation must be"),
+        (lambda V: vertex_face_candidates(V, V, [[0, 1]]), r"F must be \(M, 3\)"),
+        (lambda V: vertex_face_candidates(V, V, [[0, 1, 2]], vertices=[7]), "vertices must lie"),
+        (lambda V: edge_edge_candidates(V[:, :2], V[:, :2], [[0, 1]]), r"V_t0 must be \(N, 3\)"),
+    ],
+    ids=["shape-mismatch", "index-range", "negative-inflation", "face-width", "vertex-range", "2d"],
+)
+def test_input_errors(call, match):
+    with pytest.raises(InputError, match=match):
+        call(np.zeros((4, 3)))
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(3, 60), spread=st.floats(0.01, 3.0),
+       inflation=st.floats(0.0, 0.2))
+def test_random_soup_matches_brute(seed, n, spread, inflation):
+    rng = np.random.default_rng(seed)
+    V = rng.uniform(0, spread, (n, 3))
+    V1 = V + rng.normal(scale=0.1 * spread, size=V.shape)
+    E = rng.integers(0, n, (2 * n, 2))
+    F = rng.integers(0, n, (n, 3))
+    np.testing.assert_array_equal(edge_edge_candidates(V, V1, E, inflation),
+                                  edge_edge_candidates_brute(V, V1, E, inflation))
+    np.testing.assert_array_equal(vertex_face_candidates(V, V1, F, inflation),
+                                  vertex_face_candidates_brute(V, V1, F, inflation))

@@ -1,0 +1,252 @@
+"""Static distance kernels against exact rational arithmetic (fractions.Fraction).
+
+The oracle minimises the squared distance exactly over the same closed-form
+candidate set that defines it mathematically (endpoints, clamped projections,
+the interior critical point when it is interior), so it is the exact distance
+of the float64 inputs. Tolerance: |d - d_exact| <= RTOL * d_exact + ATOL * extent,
+with extent the largest coordinate difference in the pair.
+"""
+
+from fractions import Fraction
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from numba import njit
+
+from penfree.core.contact.distance import (
+    edge_edge_distance,
+    edge_edge_sq,
+    point_edge_distance,
+    point_edge_sq,
+    point_point_sq,
+    point_triangle_distance,
+    point_triangle_sq,
+)
+from penfree.errors import InputError
+
+RTOL = 1e-12
+ATOL = 1e-13
+
+
+RNG_SEED = 20261121  # seed of the shared `rng` fixture (tests/conftest.py)
+
+
+# --- exact oracle -------------------------------------------------------------
+
+
+def _F(v):
+    return [Fraction(float(c)) for c in v]
+
+
+def _sub(a, b):
+    return [x - y for x, y in zip(a, b)]
+
+
+def _dot(a, b):
+    return sum(x * y for x, y in zip(a, b))
+
+
+def _pe_exact(p, a, b):
+    d = _sub(b, a)
+    L2 = _dot(d, d)
+    w = _sub(p, a)
+    if L2 == 0:
+        return _dot(w, w)
+    t = min(max(_dot(w, d) / L2, Fraction(0)), Fraction(1))
+    r = [w[k] - t * d[k] for k in range(3)]
+    return _dot(r, r)
+
+
+def ee_exact(a0, a1, b0, b1):
+    a0, a1, b0, b1 = map(_F, (a0, a1, b0, b1))
+    best = min(_pe_exact(a0, b0, b1), _pe_exact(a1, b0, b1),
+               _pe_exact(b0, a0, a1), _pe_exact(b1, a0, a1))
+    u, v, w = _sub(a1, a0), _sub(b1, b0), _sub(a0, b0)
+    A, B, C, D, E = _dot(u, u), _dot(u, v), _dot(v, v), _dot(u, w), _dot(v, w)
+    det = A * C - B * B
+    if det != 0:
+        s = (B * E - C * D) / det
+        t = (A * E - B * D) / det
+        if 0 <= s <= 1 and 0 <= t <= 1:
+            r = [w[k] + s * u[k] - t * v[k] for k in range(3)]
+            best = min(best, _dot(r, r))
+    return best
+
+
+def pt_exact(p, t0, t1, t2):
+    p, t0, t1, t2 = map(_F, (p, t0, t1, t2))
+    best = min(_pe_exact(p, t0, t1), _pe_exact(p, t1, t2), _pe_exact(p, t2, t0))
+    u, v, w = _sub(t1, t0), _sub(t2, t0), _sub(p, t0)
+    A, B, C, D, E = _dot(u, u), _dot(u, v), _dot(v, v), _dot(u, w), _dot(v, w)
+    det = A * C - B * B
+    if det != 0:
+        a = (C * D - B * E) / det
+        b = (A * E - B * D) / det
+        if a >= 0 and b >= 0 and a + b <= 1:
+            r = [w[k] - a * u[k] - b * v[k] for k in range(3)]
+            best = min(best, _dot(r, r))
+    return best
+
+
+def pe_exact(p, e0, e1):
+    return _pe_exact(*map(_F, (p, e0, e1)))
+
+
+def _check(d, d2_exact, pts):
+    exact = float(d2_exact) ** 0.5
+    extent = float(np.ptp(np.asarray(pts, dtype=np.float64), axis=0).max())
+    assert abs(d - exact) <= RTOL * exact + ATOL * extent, (d, exact, extent)
+
+
+# --- named degenerate cases ---------------------------------------------------
+
+EE_CASES = {
+    "parallel-edges": ([0, 0, 0], [1, 0, 0], [0.25, 0.5, 0], [2, 0.5, 0]),
+    "parallel-disjoint": ([0, 0, 0], [1, 0, 0], [1.5, 0.3, 0.4], [3, 0.3, 0.4]),
+    "collinear-overlap": ([0, 0, 0], [1, 1, 1], [0.5, 0.5, 0.5], [2, 2, 2]),
+    "collinear-gap": ([0, 0, 0], [0.1, 0.2, 0.3], [0.3, 0.6, 0.9], [0.4, 0.8, 1.2]),
+    "zero-length-edge": ([0.3, 0.2, 0.1], [0.3, 0.2, 0.1], [0, 0, 0], [1, 0, 0]),
+    "both-zero-length": ([0.3, 0.2, 0.1], [0.3, 0.2, 0.1], [1, 2, 3], [1, 2, 3]),
+    "crossing": ([-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0]),
+    "skew-interior": ([-1, 0, 0], [1, 0, 0], [0.1, -1, 0.7], [0.2, 1, 0.7]),
+    "t-junction": ([0, 0, 0], [1, 0, 0], [0.5, 0, 0], [0.5, 1, 0]),
+    "shared-endpoint": ([0, 0, 0], [1, 0, 0], [1, 0, 0], [1, 1, 1]),
+    "near-parallel": ([0, 0, 0], [1, 0, 0], [0, 1e-3, 1e-9], [1, 1e-3 + 1e-12, -1e-9]),
+    "far-from-origin": ([1e4, 1e4, 1e4], [1e4 + 1, 1e4, 1e4],
+                        [1e4 + 0.5, 1e4 - 1, 1e4 + 0.25], [1e4 + 0.5, 1e4 + 1, 1e4 + 0.25]),
+}
+
+PT_CASES = {
+    "point-in-triangle-plane": ([0.2, 0.2, 0], [0, 0, 0], [1, 0, 0], [0, 1, 0]),
+    "point-in-plane-outside": ([2, 2, 0], [0, 0, 0], [1, 0, 0], [0, 1, 0]),
+    "above-interior": ([0.25, 0.25, 0.7], [0, 0, 0], [1, 0, 0], [0, 1, 0]),
+    "above-edge-region": ([0.5, -0.5, 0.3], [0, 0, 0], [1, 0, 0], [0, 1, 0]),
+    "above-vertex-region": ([-1, -1, 1], [0, 0, 0], [1, 0, 0], [0, 1, 0]),
+    "degenerate-triangle": ([0.5, 0.5, 0.5], [0, 0, 0], [0.1, 0.2, 0.3], [0.3, 0.6, 0.9]),
+    "repeated-corner": ([0.5, 1, 0], [0, 0, 0], [1, 0, 0], [1, 0, 0]),
+    "point-triangle": ([1, 2, 3], [1, 2, 3], [1, 2, 3], [1, 2, 3]),
+    "sliver": ([0.5, 1e-3, 1e-3], [0, 0, 0], [1, 0, 0], [0.5, 1e-11, 0]),
+    "far-from-origin": ([1e4 + 0.2, 1e4 + 0.2, 1e4 + 0.1], [1e4, 1e4, 1e4],
+                        [1e4 + 1, 1e4, 1e4], [1e4, 1e4 + 1, 1e4]),
+}
+
+PE_CASES = {
+    "point-on-edge-line": ([2, 2, 2], [0, 0, 0], [1, 1, 1]),
+    "point-on-edge": ([0.5, 0.5, 0.5], [0, 0, 0], [1, 1, 1]),
+    "zero-length-edge": ([1, 0, 0], [0.3, 0.3, 0.3], [0.3, 0.3, 0.3]),
+    "perpendicular": ([0.5, 1, 0], [0, 0, 0], [1, 0, 0]),
+    "beyond-end": ([2, 1, 0], [0, 0, 0], [1, 0, 0]),
+}
+
+
+@pytest.mark.parametrize("case", list(EE_CASES.values()), ids=list(EE_CASES))
+def test_edge_edge_named(case):
+    a0, a1, b0, b1 = (np.array(c, dtype=np.float64) for c in case)
+    d = edge_edge_distance(a0, a1, b0, b1)[0]
+    _check(d, ee_exact(a0, a1, b0, b1), case)
+    # symmetric in the two segments and in the endpoint order
+    assert edge_edge_distance(b1, b0, a0, a1)[0] == pytest.approx(d, rel=RTOL, abs=ATOL)
+
+
+@pytest.mark.parametrize("case", list(PT_CASES.values()), ids=list(PT_CASES))
+def test_point_triangle_named(case):
+    p, t0, t1, t2 = (np.array(c, dtype=np.float64) for c in case)
+    d = point_triangle_distance(p, t0, t1, t2)[0]
+    _check(d, pt_exact(p, t0, t1, t2), case)
+    assert point_triangle_distance(p, t2, t0, t1)[0] == pytest.approx(d, rel=RTOL, abs=ATOL)
+
+
+@pytest.mark.parametrize("case", list(PE_CASES.values()), ids=list(PE_CASES))
+def test_point_edge_named(case):
+    p, e0, e1 = (np.array(c, dtype=np.float64) for c in case)
+    _check(point_edge_distance(p, e0, e1)[0], pe_exact(p, e0, e1), case)
+
+
+def test_exact_zero_cases():
+    # touching primitives give exactly 0, not a rounding residue
+    assert edge_edge_distance([0, 0, 0], [1, 0, 0], [0.5, 0, 0], [0.5, 1, 0])[0] == 0.0
+    assert point_triangle_distance([0, 0, 0], [0, 0, 0], [1, 0, 0], [0, 1, 0])[0] == 0.0
+    assert point_edge_distance([1, 1, 1], [0, 0, 0], [1, 1, 1])[0] == 0.0
+
+
+# --- random cases -------------------------------------------------------------
+
+
+def _random_pairs(rng, n, k):
+    pts = rng.normal(size=(n, k, 3))
+    # a share of near-degenerate inputs: near-parallel, near-coplanar, short
+    m = n // 4
+    pts[:m, 3] = pts[:m, 2] + (pts[:m, 1] - pts[:m, 0]) * rng.uniform(0.2, 2, (m, 1)) \
+        + rng.normal(scale=1e-7, size=(m, 3))
+    return pts
+
+
+def test_random_against_exact(rng):
+    pts = _random_pairs(rng, 300, 4)
+    d_ee = edge_edge_distance(pts[:, 0], pts[:, 1], pts[:, 2], pts[:, 3])
+    d_pt = point_triangle_distance(pts[:, 3], pts[:, 0], pts[:, 1], pts[:, 2])
+    d_pe = point_edge_distance(pts[:, 2], pts[:, 0], pts[:, 1])
+    for q in range(pts.shape[0]):
+        a0, a1, b0, b1 = pts[q]
+        _check(d_ee[q], ee_exact(a0, a1, b0, b1), pts[q])
+        _check(d_pt[q], pt_exact(b1, a0, a1, b0), pts[q])
+        _check(d_pe[q], pe_exact(b0, a0, a1), pts[q])
+
+
+def test_triangle_not_above_its_edges_and_plane(rng):
+    # distance to a triangle never exceeds the distance to any of its edges,
+    # and a point of the triangle plus a normal offset h is at distance h
+    t = rng.normal(size=(200, 3, 3))
+    a, b = rng.uniform(0, 0.5, (2, 200, 1))
+    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    h = rng.uniform(0.0, 2.0, (200, 1))
+    p = t[:, 0] + a * (t[:, 1] - t[:, 0]) + b * (t[:, 2] - t[:, 0]) + h * n
+    d = point_triangle_distance(p, t[:, 0], t[:, 1], t[:, 2])
+    np.testing.assert_allclose(d, h[:, 0], rtol=1e-12, atol=1e-12)
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        assert np.all(d <= point_edge_distance(p, t[:, i], t[:, j]) + 1e-15)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-10, 10, allow_nan=False, width=32), min_size=12, max_size=12),
+       st.integers(0, 2**31))
+def test_rigid_motion_invariance(coords, seed):
+    x = np.array(coords, dtype=np.float64).reshape(4, 3)
+    rng = np.random.default_rng(seed)
+    Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    y = x @ Q.T + rng.uniform(-5, 5, 3)
+    ext = float(np.ptp(x, axis=0).max()) + 1.0
+    tol = 1e-11 * ext  # rounding of the rotation itself, extent-relative
+    assert abs(edge_edge_distance(*y)[0] - edge_edge_distance(*x)[0]) <= tol
+    assert abs(point_triangle_distance(*y)[0] - point_triangle_distance(*x)[0]) <= tol
+
+
+# --- kernels are callable from other @njit code -------------------------------
+
+
+@njit(cache=False)
+def _all_four(V):
+    return (point_point_sq(V[0], V[1]), point_edge_sq(V[0], V[1], V[2]),
+            edge_edge_sq(V[0], V[1], V[2], V[3]), point_triangle_sq(V[0], V[1], V[2], V[3]))
+
+
+def test_njit_callable(rng):
+    V = rng.normal(size=(4, 3))
+    pp, pe, ee, pt = _all_four(V)
+    assert pp == pytest.approx(float(np.sum((V[0] - V[1]) ** 2)), rel=1e-14)
+    assert pe == pytest.approx(point_edge_distance(V[0], V[1], V[2])[0] ** 2, rel=1e-12)
+    assert ee == pytest.approx(edge_edge_distance(V[0], V[1], V[2], V[3])[0] ** 2, rel=1e-12)
+    assert pt == pytest.approx(point_triangle_distance(V[0], V[1], V[2], V[3])[0] ** 2, rel=1e-12)
+
+
+def test_input_errors():
+    with pytest.raises(InputError, match=r"EA1 must be \(Q, 3\)"):
+        edge_edge_distance(np.zeros((2, 3)), np.zeros((2, 2)), np.zeros((2, 3)), np.zeros((2, 3)))
+    with pytest.raises(InputError, match="rows"):
+        point_edge_distance(np.zeros((2, 3)), np.zeros((3, 3)), np.zeros((3, 3)))
+    with pytest.raises(InputError, match="finite"):
+        point_triangle_distance(np.full((1, 3), np.nan), np.zeros((1, 3)), np.zeros((1, 3)),
+                                np.zeros((1, 3)))

@@ -1,0 +1,288 @@
+"""Report writer: JSON round trip with stable keys, Markdown, plots, CI checks."""
+
+import json
+import math
+import sys
+
+import numpy as np
+import pytest
+
+from penfree.constants import DEFAULT_GAMMA
+from penfree.core.trust.stats import compute_stats, stats_keys
+from penfree.errors import InputError, OutputExistsError
+from penfree.report.build import (
+    REPORT_SCHEMA,
+    certificate_summary,
+    load_report_json,
+    make_file_report,
+    open_result,
+    run_checks,
+    select_steps,
+    stored_stats,
+    worst_steps,
+    write_report,
+)
+from penfree.sequence import Sequence
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def _far_bounds(x, *, edges=None, faces=None, thickness=0.0, gamma=DEFAULT_GAMMA, query_radius=None):
+    # Stand-in for trust_region_bounds on scenes whose primitives are all farther apart
+    # than r_q: every vertex gets gamma * (r_q - thickness) (SPEC section 7).
+    return np.full(np.asarray(x).shape[0], gamma * max(0.0, query_radius - thickness))
+
+
+def scene_arrays(T=6, n=6, seed=3):
+    # Two 2-edge rods 10 apart (far beyond r_q), spinning slowly and drifting: the
+    # translation map helps, and every non-adjacent pair is out of query range (so the
+    # real bounds equal the stand-in's).
+    rng = np.random.default_rng(seed)
+    s = np.linspace(0.0, 0.2, n // 2)
+    base = np.concatenate([np.c_[s, 0 * s, 0 * s], np.c_[s, 0 * s + 10.0, 0 * s]])
+    frames = []
+    for t in range(T):
+        a = 0.05 * t
+        R = np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
+        frames.append(base @ R.T + 0.01 * t * np.array([1.0, 0.5, 0.0]) + 1e-4 * rng.normal(size=base.shape))
+    m = n // 2
+    edges = np.array([[i, i + 1] for i in range(m - 1)] + [[m + i, m + i + 1] for i in range(m - 1)])
+    return Sequence(positions=np.stack(frames), edges=edges).validate()
+
+
+def _translation_steps(seq):
+    pos = seq.positions
+    frames = np.arange(1, seq.n_frames)
+    u = (pos[frames] - pos[frames - 1]).mean(axis=1)
+    S = frames.size
+    A = np.repeat(np.eye(3)[None], S, axis=0)
+    return {
+        "frame": frames, "A": A, "b": u, "deformed": pos[frames] + u[:, None, :],
+        "model": np.array(["translation"] * S), "projection": np.array(["none"] * S),
+        "certificate_margin": np.ones(S), "margin_required": np.zeros(S), "rank": np.zeros(S, dtype=np.int64),
+        "time_fit_s": np.full(S, 1e-4),
+    }
+
+
+def write_tiny_result(path, with_stats=False, uncertified_frame=None):
+    from penfree.formats.result import write_result
+
+    seq = scene_arrays()
+    steps = _translation_steps(seq)
+    if uncertified_frame is not None:
+        steps["certificate_margin"][steps["frame"] == uncertified_frame] = np.nan
+    groups = None
+    if with_stats:
+        groups = {"stats": compute_stats(seq.positions, deformed=steps["deformed"], frames=steps["frame"],
+                                         edges=seq.edges, bounds_fn=lambda x, r: _far_bounds(x, query_radius=r))}
+    write_result(path, seq, steps, {"options": {"model": "translation", "projection": "none"}}, groups=groups)
+    return path
+
+
+def _report_entry(tmp_path, **kw):
+    res = open_result(write_tiny_result(tmp_path / "r.h5", with_stats=True))
+    return make_file_report(str(tmp_path / "r.h5"), res, ladder=False, **kw)
+
+
+# ---------------------------------------------------------------- report entry
+
+
+def test_stored_stats_are_used(tmp_path):
+    res = open_result(write_tiny_result(tmp_path / "r.h5", with_stats=True))
+    assert stored_stats(res) is not None
+    assert stored_stats(res, replay=True) is None  # no replay keys in the file
+    rep = make_file_report("r.h5", res, ladder=False)
+    assert rep["stats_source"] == "file"
+    sm = rep["summary"]
+    assert sm["n_steps"] == 5 and sm["n_steps_next"] == 4
+    # the translation removes the drift: closer to the next frame than doing nothing
+    assert sm["deformed"]["residual_next_rms"] < sm["baseline"]["residual_next_rms"]
+    assert rep["certificate"]["all_certified"] and rep["certificate"]["min_margin"] == 1.0
+
+
+def test_stats_computed_when_missing(tmp_path):
+    res = open_result(write_tiny_result(tmp_path / "r.h5"))
+    rep = make_file_report("r.h5", res, ladder=False, replay=True)
+    assert rep["stats_source"] == "computed"
+    assert "replay_k_1pct" in rep["summary"]["projected"]
+    assert set(stats_keys(True)) - {k for k in stats_keys(True) if k.startswith("r_hist")} <= set(rep["steps"])
+
+
+def test_select_steps_subsets_steps_and_stats(tmp_path):
+    res = open_result(write_tiny_result(tmp_path / "r.h5", with_stats=True))
+    sub = select_steps(res, (2, 4))
+    assert sub.steps["frame"].tolist() == [2, 3]
+    assert sub.groups["stats"]["frame"].tolist() == [2, 3]
+    assert sub.steps["deformed"].shape[0] == 2 and stored_stats(sub) is not None
+    with pytest.raises(InputError, match="selects none"):
+        select_steps(res, (50, None))
+
+
+def test_open_result_rejects_a_raw_sequence(tmp_path):
+    from penfree.formats import write_sequence
+
+    p = tmp_path / "raw.h5"
+    write_sequence(p, scene_arrays())
+    with pytest.raises(InputError, match="not a penfree deform output"):
+        open_result(p)
+    with pytest.raises(InputError, match="no such file"):
+        open_result(tmp_path / "missing.h5")
+
+
+def test_worst_steps_order():
+    st = {k: np.zeros(4) for k in stats_keys()}
+    st["frame"] = np.array([1, 2, 3, 4])
+    st["k_1pct_next_deformed"][:] = [2, 5, 5, np.nan]
+    st["k_1pct_next_baseline"][:] = [2, 9, 6, np.nan]
+    rows = worst_steps(st, n=3)
+    # most deformed passes first; among equals the smaller gain (frame 3: 1 < frame 2: 4)
+    assert [r["frame"] for r in rows] == [3, 2, 1]
+    assert rows[0]["k_1pct_gain"] == 1.0 and rows[0]["target"] == "next"
+
+
+def test_certificate_summary():
+    steps = {"frame": np.array([1, 2, 3]), "certificate_margin": np.array([0.3, np.nan, 0.05]),
+             "margin_required": np.array([0.1, 0.1, 0.1]), "model": np.array(["affine"] * 3),
+             "projection": np.array(["none", "sym", "sym"])}
+    c = certificate_summary(steps)
+    assert (c["all_certified"], c["n_uncertified"], c["uncertified_frames"]) == (False, 2, [2, 3])
+    assert c["min_margin"] == 0.05 and c["projections"] == {"none": 1, "sym": 2}
+
+
+# ---------------------------------------------------------------- write_report
+
+
+TOP_KEYS = {"penfree_report", "penfree_version", "projected_formula", "options", "plots", "checks",
+            "all_checks_passed", "files"}
+FILE_KEYS = {"file", "name", "scene", "deform_options", "stats_source", "summary", "certificate", "worst_steps",
+             "steps", "r_hist", "ladder"}
+SUMMARY_KEYS = {"n_steps", "n_steps_next", "fit_ms_mean", "fit_ms_median", "hit_rate_gain_next", "hit_rate_gain_pred",
+                "baseline", "deformed", "projected"}
+
+
+def _strict_json(path):
+    def bad(c):
+        raise ValueError(f"non-standard JSON constant {c}")
+
+    return json.loads(path.read_text(), parse_constant=bad)
+
+
+def test_json_round_trip_keys_stable(tmp_path):
+    rep = _report_entry(tmp_path)
+    out = tmp_path / "rep"
+    doc = write_report(out, [rep], options={"cd_share": 0.5}, plots=False)
+    back = _strict_json(out / "report.json")
+    assert back == doc
+    assert set(back) == TOP_KEYS and back["penfree_report"] == REPORT_SCHEMA
+    f = back["files"][0]
+    assert set(f) == FILE_KEYS and set(f["summary"]) == SUMMARY_KEYS
+    assert set(f["summary"]["projected"]) == {"label", "cd_share", "frame_ms", "fit_ms", "fit_ms_statistic", "target",
+                                              "k_1pct", "k_any"}
+    assert set(f["summary"]["projected"]["k_1pct"]) == {"k_baseline", "k_deformed", "frame_ms", "speedup"}
+    assert f["summary"]["projected"]["label"] == "projected"
+    assert f["steps"]["hit_rate_next_deformed"][-1] is None  # NaN written as null
+    assert f["summary"]["projected"]["fit_ms"] == pytest.approx(0.1, rel=1e-12)
+    assert load_report_json(out / "report.json") == back
+    assert load_report_json(out) == back  # a report directory works as well
+    md = (out / "report.md").read_text()
+    assert "*projected*" in md and "f = 0.5" in md and "T_frame = 32 ms" in md
+    assert "Plots disabled" in md and "r.h5" in md
+
+
+def test_existing_output_needs_overwrite(tmp_path):
+    rep = _report_entry(tmp_path)
+    out = tmp_path / "rep"
+    write_report(out, [rep], plots=False)
+    (out / "marker").write_text("old")
+    with pytest.raises(OutputExistsError):
+        write_report(out, [rep], plots=False)
+    assert (out / "marker").exists()
+    write_report(out, [rep], overwrite=True, plots=False)
+    assert not (out / "marker").exists() and (out / "report.json").exists()
+
+
+def test_load_report_json_rejects_other_json(tmp_path):
+    p = tmp_path / "x.json"
+    p.write_text('{"a": 1}')
+    with pytest.raises(InputError, match="not a penfree report.json"):
+        load_report_json(p)
+    with pytest.raises(InputError, match="cannot read"):
+        load_report_json(tmp_path / "none.json")
+
+
+def test_plots_written_with_matplotlib(tmp_path):
+    pytest.importorskip("matplotlib")
+    res = open_result(write_tiny_result(tmp_path / "r.h5", with_stats=True))
+    rep = make_file_report("r.h5", res, ladder=False)
+    row = {"residual_pred_rms": 0.1, "k_1pct_next": 1.0, "k_any_next": 1.0, "hit_rate_next": 1.0,
+           "certificate_margin_mean": 0.9, "certificate_margin_min": 0.9, "models_used": {"affine": 5}}
+    rep["ladder"] = {"models": ["baseline", "affine"], "n_steps": 5, "n_steps_next": 4, "rows": [
+        {**row, "model": "baseline", "fit_ms_mean": 0.0, "fit_ms_median": 0.0, "residual_next_rms": 1.0},
+        {**row, "model": "affine", "fit_ms_mean": 0.1, "fit_ms_median": 0.1, "residual_next_rms": 0.2}]}
+    out = tmp_path / "rep"
+    doc = write_report(out, [rep, dict(rep)])
+    assert doc["plots"]["status"] == "written"
+    names = {"r_hit_rate.png", "r_cd_passes.png", "r_r_hist.png", "r_ladder.png"}
+    assert set(doc["plots"]["per_file"][0]) == names
+    assert set(doc["plots"]["per_file"][1]) == {n.replace("r_", "r-2_", 1) for n in names}
+    for name in doc["plots"]["files"]:
+        assert (out / name).read_bytes()[:8] == PNG_MAGIC
+    assert "![r_hit_rate.png](r_hit_rate.png)" in (out / "report.md").read_text()
+
+
+def test_plots_skipped_without_matplotlib(tmp_path, monkeypatch):
+    for mod in [m for m in sys.modules if m == "matplotlib" or m.startswith("matplotlib.")]:
+        monkeypatch.delitem(sys.modules, mod)
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
+    rep = _report_entry(tmp_path)
+    out = tmp_path / "rep"
+    doc = write_report(out, [rep])
+    assert doc["plots"]["status"] == "skipped" and "matplotlib" in doc["plots"]["reason"]
+    assert not list(out.glob("*.png"))
+    assert "Plots skipped" in (out / "report.md").read_text()
+    assert _strict_json(out / "report.json")["plots"]["status"] == "skipped"
+
+
+# ---------------------------------------------------------------- checks
+
+
+def _rep(name="a.h5", speedup=1.2, gain=0.1, k=2.0, hit=0.8, n_uncert=0):
+    return {"name": name, "summary": {"hit_rate_gain_next": gain,
+                                      "deformed": {"k_1pct_next": k, "hit_rate_next": hit},
+                                      "projected": {"k_1pct": {"speedup": speedup}}},
+            "certificate": {"all_certified": n_uncert == 0, "n_uncertified": n_uncert,
+                            "uncertified_frames": list(range(n_uncert))}}
+
+
+@pytest.mark.parametrize(
+    "kw, rep_kw, passed",
+    [
+        pytest.param({"min_speedup": 1.1}, {}, [True], id="speedup-pass"),
+        pytest.param({"min_speedup": 1.3}, {}, [False], id="speedup-fail"),
+        pytest.param({"min_speedup": 1.0}, {"speedup": float("nan")}, [False], id="speedup-missing"),
+        pytest.param({"min_hit_rate_gain": 10.0}, {}, [True], id="gain-10-points-pass"),
+        pytest.param({"min_hit_rate_gain": 10.5}, {}, [False], id="gain-fail"),
+        pytest.param({"fail_if_uncertified": True}, {"n_uncert": 2}, [False], id="uncertified"),
+        pytest.param({"fail_if_uncertified": True}, {}, [True], id="certified"),
+    ],
+)
+def test_threshold_checks(kw, rep_kw, passed):
+    checks = run_checks([_rep(**rep_kw)], **kw)
+    assert [c["passed"] for c in checks] == passed
+
+
+def test_regression_checks():
+    base = {"files": [_rep(name="a.h5")]}
+    same = run_checks([_rep()], baseline=base, max_regression=0.0)
+    assert len(same) == 3 and all(c["passed"] for c in same)
+    # K_1pct 2 -> 2.1 is a 5 % regression; speedup 1.2 -> 1.17 is 2.5 %
+    worse = run_checks([_rep(k=2.1, speedup=1.17)], baseline=base, max_regression=3.0)
+    by = {c["name"]: c["passed"] for c in worse}
+    assert by == {"regression:deformed.k_1pct_next": False, "regression:projected.k_1pct.speedup": True,
+                  "regression:deformed.hit_rate_next": True}
+    better = run_checks([_rep(k=1.0, speedup=2.0, hit=0.99)], baseline=base, max_regression=0.0)
+    assert all(c["passed"] for c in better)
+    # a single file on each side is matched whatever its name; two are matched by name
+    assert all(c["passed"] for c in run_checks([_rep(name="b.h5")], baseline=base, max_regression=0.0))
+    two = run_checks([_rep(name="b.h5"), _rep(name="a.h5")], baseline=base, max_regression=0.0)
+    assert [c["passed"] for c in two if c["file"] == "b.h5"] == [False]
