@@ -25,6 +25,10 @@ class FormatSpec:
         magic bytes of an existing input).
     outputs : callable ``(path: str) -> list of str`` or None
         Every path the writer creates (XDMF writes a heavy-data file beside the XML).
+    input_files : callable ``(path: str) -> list of str`` or None
+        Every file the reader reads (a mesh sequence: its frame files); None: ``[path]``.
+    output_files : callable ``(path: str, n_frames: int) -> list of str`` or None
+        Every file writing `n_frames` frames creates, replaces or removes; None: `outputs`.
     """
 
     name: str
@@ -33,12 +37,15 @@ class FormatSpec:
     writer: Callable
     sniff: Optional[Callable] = None
     outputs: Optional[Callable] = None
+    input_files: Optional[Callable] = None
+    output_files: Optional[Callable] = None
 
 
 FORMATS: dict = {}
 
 
-def register(name, extensions, reader, writer, sniff=None, outputs=None) -> None:
+def register(name, extensions, reader, writer, sniff=None, outputs=None, input_files=None,
+             output_files=None) -> None:
     """Register a format under `name` for `extensions` (later registrations replace)."""
     exts = tuple(e.lower() if e.startswith(".") else "." + e.lower() for e in extensions)
-    FORMATS[name] = FormatSpec(name, exts, reader, writer, sniff, outputs)
+    FORMATS[name] = FormatSpec(name, exts, reader, writer, sniff, outputs, input_files, output_files)

@@ -290,4 +290,4 @@ def _read_meshio_series(path: str) -> Sequence:
                     edges=np.concatenate(edges) if edges else None, origin=path)
 
 
-register("xdmf", (".xdmf", ".xmf"), read_xdmf, write_xdmf, outputs=_outputs)
+register("xdmf", (".xdmf", ".xmf"), read_xdmf, write_xdmf, outputs=_outputs, input_files=_outputs)

@@ -60,7 +60,7 @@ def test_convert_and_back(tmp_path, target, dtype):
     r = _run("convert", tmp_path / read_as, tmp_path / "back.h5")
     assert r.exit_code == 0, r.output
     np.testing.assert_array_equal(read_sequence(tmp_path / "back.h5").positions, seq.positions)
-    assert not [n for n in os.listdir(tmp_path) if ".tmp-" in n]
+    assert not [n for n in os.listdir(tmp_path) if n.startswith(".pf")]
 
 
 def test_format_options(tmp_path):

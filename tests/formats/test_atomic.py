@@ -16,7 +16,7 @@ def test_atomic_file_renames_on_success(tmp_path):
     target = tmp_path / "out.bin"
     with atomic_file(target) as tmp:
         assert os.path.dirname(tmp) == str(tmp_path)
-        assert os.path.basename(tmp).startswith(".out.bin.tmp-")
+        assert os.path.basename(tmp).startswith(".pf") and len(os.path.basename(tmp)) <= 16  # short: any output name fits
         with open(tmp, "w") as fh:
             fh.write("new")
         assert not target.exists()  # nothing visible before the end
