@@ -47,11 +47,10 @@ def command(input_path, output_path, model, projection, margin, thickness, frame
     to the deformed state is certified penetration-free (exact test) before it is written.
     """
     from ..core.pipeline import deform_sequence, summarize_steps
-    from ..formats import read_sequence
-    from ..formats.atomic import check_output
+    from ..formats import check_outputs, input_files, read_sequence
     from ..formats.result import write_result
 
-    check_output(output_path, overwrite, inputs=[input_path])
+    check_outputs([output_path], input_files(input_path, in_format), overwrite)
     frame_slice = parse_frames(frames)
     set_threads(threads)
     seq = read_sequence(input_path, format=in_format)
@@ -102,18 +101,24 @@ def _read_weights(path, name, seq):
         return seq.weights
     import h5py
 
+    from ..formats.hdf5 import open_h5
+    from ..sequence import check_weights
+
+    where = f"{path}:/{name}"
     try:
-        with h5py.File(path, "r") as f:
-            if name not in f:
-                raise InputError(f"--weights {name}: no dataset {name!r} in {path}")
-            w = np.asarray(f[name][()], dtype=np.float64)
-    except OSError:
-        raise InputError(f"--weights {name}: {path} is not an HDF5 file; only HDF5 inputs have named datasets") from None
-    if w.shape != (seq.n_vertices,):
-        raise InputError(f"weights must be ({seq.n_vertices},); got {w.shape} in {path}:/{name}")
-    if not np.isfinite(w).all() or (w < 0).any() or not w.sum() > 0:
-        raise InputError(f"weights must be finite, >= 0 and not all zero in {path}:/{name}")
-    return w
+        with open_h5(path) as f:
+            obj = f.get(name)
+            if obj is None:
+                raise InputError(f"--weights {name}: no dataset {name!r} in {where}")
+            if not isinstance(obj, h5py.Dataset) or obj.dtype.kind not in "iuf":
+                what = "a group" if isinstance(obj, h5py.Group) else f"a {obj.dtype} dataset"
+                raise InputError(f"--weights {name}: expected a numeric ({seq.n_vertices},) dataset; got {what} in {where}")
+            w = np.asarray(obj[()], dtype=np.float64)
+    except InputError as exc:
+        if "not an HDF5 file" in str(exc):
+            raise InputError(f"--weights {name}: {path} is not an HDF5 file; only HDF5 inputs have named datasets") from None
+        raise
+    return check_weights(w, seq.n_vertices, where)
 
 
 def _print_summary(s, seq):

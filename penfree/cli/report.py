@@ -7,7 +7,8 @@ import click
 from ..constants import DEFAULT_CD_SHARE, DEFAULT_FRAME_MS, DEFAULT_GAMMA
 from ..errors import InputError
 from .options import (
-    Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames, set_threads, threads_option,
+    Progress, echo_json, finite_option, frames_option, json_option, overwrite_option, parse_frames, set_threads,
+    threads_option,
 )
 
 
@@ -27,9 +28,9 @@ from .options import (
 @threads_option
 @json_option
 @click.option("--fail-if-uncertified", is_flag=True, help="Check: every step's map is certified.")
-@click.option("--min-speedup", type=float, default=None, metavar="X",
+@click.option("--min-speedup", type=float, default=None, metavar="X", callback=finite_option,
               help="Check: projected speedup (K_1pct rule) >= X.")
-@click.option("--min-hit-rate-gain", type=float, default=None, metavar="POINTS",
+@click.option("--min-hit-rate-gain", type=float, default=None, metavar="POINTS", callback=finite_option,
               help="Check: hit rate vs the next frame gains >= POINTS percentage points (deformed - baseline).")
 @click.option("--baseline", "baseline_path", type=click.Path(), default=None, metavar="REPORT.json",
               help="Check: compare with a stored report.json (needs --max-regression).")

@@ -3,6 +3,7 @@
 import click
 
 from ..constants import DEFAULT_MAX_PAIRS
+from ..errors import InputError
 from .options import (
     Progress, echo_json, frames_option, json_option, parse_frames, set_threads,
     thickness_option, threads_option,
@@ -60,6 +61,9 @@ def command(path, thickness, frames, threads, as_json, max_pairs, mode):
     with Progress(n_steps(path, frame_slice), "verify") as bar:
         report = verify_file(path, thickness=thickness, frames=frame_slice, mode=mode,
                              max_pairs=max_pairs, progress=bar)
+    if not report.steps:  # "all steps safe" about nothing would be a false claim
+        raise InputError(f"--frames {frames} selects no step of {path} ({report.kind}); "
+                         f"nothing to verify" if frames is not None else f"{path} holds no step to verify")
     if as_json:
         echo_json(report.to_dict())
     else:
