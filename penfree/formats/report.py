@@ -244,6 +244,18 @@ def load_report_json(path) -> dict:
         raise InputError(f"cannot read baseline report {path}: {exc}") from None
     if not isinstance(data, dict) or data.get("penfree_report") != REPORT_SCHEMA or "files" not in data:
         raise InputError(f"{path} is not a penfree report.json (expected penfree_report = {REPORT_SCHEMA})")
+    files = data["files"]
+    if not isinstance(files, list) or not all(isinstance(f, dict) for f in files):
+        raise InputError(f"{path}: files must be a list of objects in a penfree report.json")
+    for k, f in enumerate(files):
+        if not isinstance(f.get("name", ""), str) or not isinstance(f.get("summary", {}), dict):
+            raise InputError(f"{path}: files[{k}] needs a string name and an object summary")
+        for dotted, _ in REGRESSION_FIGURES:
+            d = f.get("summary", {})
+            for part in dotted.split("."):
+                d = d.get(part) if isinstance(d, dict) else None
+            if d is not None and (isinstance(d, bool) or not isinstance(d, (int, float))):
+                raise InputError(f"{path}: files[{k}].summary.{dotted} must be a number or null; got {d!r}")
     return data
 
 
