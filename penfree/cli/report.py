@@ -48,14 +48,13 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, no_ladder, no_
       penfree report deformed.h5 -o report/ --min-speedup 1.1 --fail-if-uncertified
       penfree report deformed.h5 -o new/ --baseline old/report.json --max-regression 5
     """
-    from ..formats.atomic import check_output
     from ..formats.report import (
-        load_report_json, make_file_report, open_result, run_checks, select_steps, stored_stats, write_report,
+        check_report_dir, load_report_json, make_file_report, open_result, run_checks, select_steps, stored_stats, write_report,
     )
 
     if (baseline_path is None) != (max_regression is None):
         raise InputError("--baseline and --max-regression go together; give both or neither")
-    check_output(outdir, overwrite, inputs=files)
+    check_report_dir(outdir, overwrite, inputs=list(files) + ([baseline_path] if baseline_path else []))
     frame_slice = parse_frames(frames)
     set_threads(threads)
     baseline = load_report_json(baseline_path) if baseline_path else None

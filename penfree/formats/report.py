@@ -66,7 +66,7 @@ from ..constants import DEFAULT_CD_SHARE, DEFAULT_FRAME_MS
 from ..core.ladder import model_ladder
 from ..core.stats import R_HIST_EDGES, STARTS, TARGETS, compute_stats, stats_keys, summarize
 from ..errors import InputError
-from .atomic import atomic_dir
+from .atomic import atomic_dir, check_output_dir
 
 REPORT_SCHEMA = 1
 #: Rows of the worst-steps table.
@@ -259,6 +259,34 @@ def load_report_json(path) -> dict:
     return data
 
 
+def report_names(outdir):
+    """``name -> bool``: True for the entries of an existing report directory that penfree wrote.
+
+    Those are ``report.md``, ``report.json`` and the plots that report.json lists; a
+    directory without a penfree report.json owns nothing.
+    """
+    try:
+        with open(os.path.join(os.fspath(outdir), "report.json"), encoding="utf-8") as fh:
+            doc = json.load(fh)
+        plots = doc.get("plots", {}).get("files", []) if doc.get("penfree_report") == REPORT_SCHEMA else None
+    except (OSError, ValueError, AttributeError):
+        plots = None
+    if not isinstance(plots, list):
+        return lambda name: False
+    owned = {"report.md", "report.json"} | {p for p in plots if isinstance(p, str) and p.endswith(".png")}
+    return owned.__contains__
+
+
+def check_report_dir(outdir, overwrite=False, inputs=()) -> None:
+    """Refuse a report directory that holds an input, the working directory, or files penfree did not write.
+
+    Raises
+    ------
+    InputError, OutputExistsError
+    """
+    check_output_dir(outdir, overwrite, inputs=inputs, owned=report_names(outdir))
+
+
 def write_report(outdir, reports, overwrite=False, *, options=None, checks=None, plots=True) -> dict:
     """Write ``report.md``, ``report.json`` and the PNG plots into `outdir`, atomically.
 
@@ -295,6 +323,7 @@ def write_report(outdir, reports, overwrite=False, *, options=None, checks=None,
         "all_checks_passed": all(c["passed"] for c in checks),
         "files": list(reports),
     }
+    check_report_dir(outdir, overwrite, inputs=[r["file"] for r in reports])
     with atomic_dir(outdir, overwrite) as tmp:
         if plots:
             doc["plots"] = write_plots(tmp, reports)

@@ -1,6 +1,7 @@
 """``penfree report``: files written, exit codes of the CI checks, unusable input."""
 
 import importlib
+import os
 import json
 import math
 import sys
@@ -183,8 +184,13 @@ def test_existing_output_not_replaced(result, tmp_path):
     r = run(result, "-o", out, "--no-ladder", "--no-plots")
     assert r.exit_code == 2 and "--overwrite" in r.output
     assert (out / "keep").exists()
-    r = run(result, "-o", out, "--no-ladder", "--no-plots", "--overwrite")
-    assert r.exit_code == 0 and not (out / "keep").exists()
+    r = run(result, "-o", out, "--no-ladder", "--no-plots", "--overwrite")  # --overwrite: the named output only
+    assert r.exit_code == 2 and "did not write" in r.output and (out / "keep").read_text() == "x"
+    (out / "keep").unlink()
+    assert run(result, "-o", out, "--no-ladder", "--no-plots").exit_code == 2  # exists, even empty
+    assert run(result, "-o", out, "--no-ladder", "--overwrite").exit_code == 0  # an empty directory
+    r = run(result, "-o", out, "--no-ladder", "--overwrite")  # a report penfree wrote, plots included
+    assert r.exit_code == 0 and {"report.json", "report.md"} <= set(os.listdir(out))
 
 
 def test_click_rejects_bad_assumptions(result, tmp_path):
