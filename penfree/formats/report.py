@@ -74,15 +74,55 @@ WORST_STEPS = 10
 PROJECTED_FORMULA = "T' = T_frame ((1 - f) + f K_deformed / K_baseline) + t_fit, speedup = T_frame / T'"
 
 
-def certificate_summary(steps) -> dict:
+def recheck_certificates(steps, groups=None) -> np.ndarray:
+    """Re-run the one certification gate on every stored map: (S,) bool, never trusting stored claims.
+
+    Step k is certified when ``certify_map(steps/A[k], m)`` holds with m its
+    ``margin_required`` (0 where the file has none; m >= 1 means no margin was
+    possible and only the identity is accepted, as in verify). A per-component
+    step (``steps/A`` all NaN) needs every map ``component_maps/A[k]`` certified.
+    A NaN, infinite or negative margin, a partly NaN map or missing component maps
+    count as not certified.
+    """
+    from ..core.certificate import certify_map
+
+    A = np.asarray(steps["A"], dtype=np.float64)
+    S = A.shape[0]
+    req = np.asarray(steps.get("margin_required", np.zeros(S)), dtype=np.float64).reshape(-1)
+    comp = (groups or {}).get("component_maps")
+    comp_A = np.asarray(comp["A"], dtype=np.float64) if isinstance(comp, dict) and "A" in comp else None
+    if comp_A is not None and (comp_A.ndim != 4 or comp_A.shape[0] != S or comp_A.shape[2:] != (3, 3)):
+        comp_A = None
+    ok = np.zeros(S, dtype=bool)
+    for k in range(S):
+        m = req[k] if req.size == S else np.nan
+        if not np.isfinite(m) or m < 0:
+            continue
+        if np.isfinite(A[k]).all():
+            maps = [A[k]]
+        elif np.isnan(A[k]).all() and comp_A is not None and np.isfinite(comp_A[k]).all() and len(comp_A[k]):
+            maps = list(comp_A[k])
+        else:
+            continue
+        if m >= 1.0:
+            ok[k] = all(np.array_equal(M, np.eye(3)) for M in maps)
+        else:
+            ok[k] = all(certify_map(M, m) for M in maps)
+    return ok
+
+
+def certificate_summary(steps, rechecked=None) -> dict:
     """Min margin, all certified yes/no, models and projections used, from ``steps/``.
 
     A step counts as certified when its ``certificate_margin`` is finite and at least
-    its ``margin_required`` (0 where the file has none).
+    its ``margin_required`` (0 where the file has none) and, when `rechecked` (from
+    `recheck_certificates`) is given, its map passes the certificate again.
     """
     cm = np.asarray(steps.get("certificate_margin", []), dtype=np.float64)
     req = np.asarray(steps.get("margin_required", np.zeros_like(cm)), dtype=np.float64)
     ok = np.isfinite(cm) & (cm >= np.where(np.isfinite(req), req, 0.0))
+    if rechecked is not None:
+        ok = ok & rechecked if ok.shape == rechecked.shape else np.asarray(rechecked, dtype=bool)
     frames = np.asarray(steps.get("frame", np.arange(cm.size)))
 
     def counts(key):
@@ -91,7 +131,7 @@ def certificate_summary(steps) -> dict:
 
     return {
         "min_margin": float(np.nanmin(cm)) if cm.size and not np.all(np.isnan(cm)) else math.nan,
-        "all_certified": bool(ok.all()) if cm.size else False,
+        "all_certified": bool(ok.all()) if ok.size else False,
         "n_uncertified": int(np.count_nonzero(~ok)),
         "uncertified_frames": frames[~ok].tolist(),
         "models": counts("model"),
@@ -139,7 +179,7 @@ def build_file_report(path, result, stats, *, ladder=None, cd_share=DEFAULT_CD_S
         "deform_options": dict(result.attrs),
         "stats_source": stats_source,
         "summary": summarize(stats, steps, cd_share=cd_share, frame_ms=frame_ms),
-        "certificate": certificate_summary(steps),
+        "certificate": certificate_summary(steps, recheck_certificates(steps, result.groups)),
         "worst_steps": worst_steps(stats),
         "steps": per_step,
         "r_hist": hist,
@@ -183,6 +223,9 @@ def select_steps(result, frames=None):
     groups = dict(result.groups)
     if isinstance(groups.get("stats"), dict):
         groups["stats"] = sub(groups["stats"])
+    if isinstance(groups.get("component_maps"), dict):  # per-step maps; labels are per vertex
+        groups["component_maps"] = {k: (sub({k: v})[k] if k != "labels" else v)
+                                    for k, v in groups["component_maps"].items()}
     return dataclasses.replace(result, steps=sub(result.steps), groups=groups)
 
 
