@@ -1,0 +1,146 @@
+"""The CLI contract, asserted around every command a CLI test runs.
+
+`cli` runs ``penfree ARGS...`` in-process (click's CliRunner) with a snapshot
+(content hash of every file, hidden ones included) of a folder taken before and
+after, and asserts what every command promises whatever its outcome:
+
+- no traceback, and an exit code in {0, 1, 2, 130, 143};
+- exit 2 (unusable input or option): exactly one line on stderr, nothing written;
+- no new, changed or missing file other than the named output (``-o``, convert's
+  OUT with its XDMF heavy-data file, a pattern's numbered files, a directory's
+  contents), inputs included.
+
+>>> def test_x(cli, tmp_path):                                       # doctest: +SKIP
+...     r = cli("deform", tmp_path / "in.h5", "-o", tmp_path / "out.h5", expect=0)
+...     r.changed        # {"out.h5": "new"}
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import hashlib
+import os
+from dataclasses import dataclass
+
+import pytest
+from click.testing import CliRunner
+
+from penfree.cli import main
+from penfree.formats.atomic import printf_to_glob
+from penfree.formats.meshseq import MESH_EXTENSIONS, output_pattern
+
+EXIT_CODES = (0, 1, 2, 130, 143)
+
+
+def snapshot(folder) -> dict:
+    """``relative path -> digest`` of everything under `folder` (files hashed, links by target)."""
+    out = {}
+    folder = os.fspath(folder)
+    for root, dirs, files in os.walk(folder):
+        for name in dirs + files:
+            full = os.path.join(root, name)
+            rel = os.path.relpath(full, folder)
+            if os.path.islink(full):
+                out[rel] = "link:" + os.readlink(full)
+            elif os.path.isdir(full):
+                out[rel] = "dir"
+            else:
+                try:
+                    with open(full, "rb") as fh:
+                        out[rel] = hashlib.sha256(fh.read()).hexdigest()
+                except OSError:  # unreadable on purpose (permission tests)
+                    st = os.stat(full)
+                    out[rel] = f"unreadable:{st.st_size}:{st.st_mtime_ns}"
+    return out
+
+
+def diff(before: dict, after: dict) -> dict:
+    """``path -> "new" | "changed" | "missing"``."""
+    out = {p: "new" for p in after.keys() - before.keys()}
+    out.update({p: "missing" for p in before.keys() - after.keys()})
+    out.update({p: "changed" for p in before.keys() & after.keys() if before[p] != after[p]})
+    return out
+
+
+def inferred_outputs(args) -> list:
+    """The named outputs of a command line: ``-o``/``--output``, and convert's OUT."""
+    args = [str(a) for a in args]
+    outs = []
+    for k, a in enumerate(args[:-1]):
+        if a in ("-o", "--output"):
+            outs.append(args[k + 1])
+    if args and args[0] == "convert":
+        pos = [a for k, a in enumerate(args[1:], 1) if not a.startswith("-")
+               and args[k - 1] not in ("--format", "--from-format")]
+        if len(pos) >= 2:
+            outs.append(pos[1])
+    return outs
+
+
+def _allowed(rel: str, folder: str, outputs) -> bool:
+    full = os.path.join(folder, rel)
+    for out in outputs:
+        out = os.path.abspath(os.fspath(out))
+        if out.lower().endswith(MESH_EXTENSIONS):
+            out = output_pattern(out)  # frame_0001.ply names the series frame_%04d.ply
+        globbed = printf_to_glob(out)
+        if full == out or full.startswith(out.rstrip(os.sep) + os.sep):
+            return True  # the output itself, or inside an output directory
+        if full == out + ".h5" and out.lower().endswith((".xdmf", ".xmf")):
+            return True  # XDMF heavy data
+        if globbed != out and fnmatch.fnmatch(full, globbed):
+            return True  # numbered files of a pattern output
+        if os.path.dirname(full) == out.rstrip(os.sep) or full == os.path.dirname(globbed):
+            return True  # a mesh sequence written into a directory
+    return False
+
+
+@dataclass
+class CliRun:
+    """What one command did: exit code, stdout, stderr and the folder's changes."""
+
+    exit_code: int
+    stdout: str
+    stderr: str
+    output: str
+    changed: dict
+    exception: BaseException | None
+
+
+def run_checked(folder, args, *, outputs=None, expect=None, input=None) -> CliRun:
+    """Run ``penfree args`` and assert the contract of the module docstring (see `cli`)."""
+    folder = os.path.abspath(os.fspath(folder))
+    args = [str(a) for a in args]
+    outputs = inferred_outputs(args) if outputs is None else [os.fspath(o) for o in outputs]
+    before = snapshot(folder)
+    r = CliRunner().invoke(main, args, input=input)
+    after = snapshot(folder)
+    changed = diff(before, after)
+    exc = r.exception if not isinstance(r.exception, SystemExit) else None
+    where = f"penfree {' '.join(args)}"
+    assert exc is None, f"{where} raised {type(exc).__name__}: {exc}\n{r.output}"
+    assert "Traceback" not in r.output and "Exception ignored" not in r.output, f"{where}:\n{r.output}"
+    assert r.exit_code in EXIT_CODES, f"{where}: exit {r.exit_code}\n{r.output}"
+    if r.exit_code in (2, 130, 143):
+        lines = r.stderr.splitlines()
+        assert len(lines) == 1 and lines[0].startswith("penfree: "), f"{where}: stderr must be one line:\n{r.stderr}"
+        assert not changed, f"{where}: exit {r.exit_code} but files changed: {changed}"
+    stray = {p: c for p, c in changed.items() if not _allowed(p, folder, outputs)}
+    assert not stray, f"{where}: changed files other than the named output {outputs}: {stray}"
+    assert not [p for p in after if os.path.basename(p).startswith(".pf")], f"{where}: temporary left: {after}"
+    if expect is not None:
+        assert r.exit_code == expect, f"{where}: exit {r.exit_code}, expected {expect}\n{r.output}"
+    return CliRun(r.exit_code, r.stdout, r.stderr, r.output, changed, r.exception)
+
+
+@pytest.fixture
+def cli(tmp_path):
+    """``cli(*args, outputs=None, expect=None, folder=tmp_path)``: run penfree, assert the file contract.
+
+    `outputs` defaults to the outputs named on the command line (``-o``, convert's OUT);
+    `folder` is the folder snapshotted (default: the test's tmp_path).
+    """
+    def run(*args, outputs=None, expect=None, folder=None, input=None):
+        return run_checked(folder or tmp_path, args, outputs=outputs, expect=expect, input=input)
+
+    return run
