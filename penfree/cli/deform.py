@@ -50,6 +50,9 @@ def command(input_path, output_path, model, projection, margin, thickness, frame
     from ..formats import check_outputs, input_files, read_sequence
     from ..formats.result import write_result
 
+    from ..formats.atomic import check_file_name
+
+    check_file_name(output_path)
     check_outputs([output_path], input_files(input_path, in_format), overwrite)
     frame_slice = parse_frames(frames)
     set_threads(threads)

@@ -79,13 +79,18 @@ def check_output(path, overwrite: bool = False, inputs=()) -> None:
         `path` exists and `overwrite` is False.
     """
     path = os.fspath(path)
-    if path.endswith(os.sep) or (os.altsep and path.endswith(os.altsep)):
-        raise InputError(f"output {path} ends with a path separator; expected a file name")
     for inp in inputs:
         if inp is not None and _same_path(path, os.fspath(inp)):
             raise InputError(f"output {path} is also an input; choose another output name (inputs are never modified)")
     if not overwrite and output_exists(path):
         raise OutputExistsError(f"output {path} exists; pass --overwrite (overwrite=True) to replace it")
+
+
+def check_file_name(path) -> None:
+    """InputError unless `path` can name a file: not a directory, no trailing separator."""
+    path = os.fspath(path)
+    if path.endswith(os.sep) or (os.altsep and path.endswith(os.altsep)) or os.path.isdir(path):
+        raise InputError(f"output {path} is a directory name; expected a file name")
 
 
 def _umask_mode(mode: int) -> int:
@@ -242,8 +247,7 @@ def atomic_file(path, overwrite: bool = False):
         (empty), writers may truncate it.
     """
     path = os.fspath(path)
-    if os.path.isdir(path):
-        raise InputError(f"output {path} is a directory; expected a file name")
+    check_file_name(path)
     if not overwrite and os.path.lexists(path):
         raise _exists_error(path)
     parent = os.path.dirname(os.path.abspath(path))

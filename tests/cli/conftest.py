@@ -107,8 +107,25 @@ class CliRun:
     exception: BaseException | None
 
 
+def check_contract(where, exit_code, stdout, stderr, changed, after, folder, outputs, expect, concurrent=False):
+    """The assertions shared by in-process (`cli`) and subprocess (`cli_process`) runs."""
+    output = stdout + stderr
+    assert "Traceback" not in output and "Exception ignored" not in output, f"{where}:\n{output}"
+    assert exit_code in EXIT_CODES, f"{where}: exit {exit_code}\n{output}"
+    if exit_code in (2, 130, 143):
+        lines = stderr.splitlines()
+        assert len(lines) == 1 and lines[0].startswith("penfree: "), f"{where}: stderr must be one line:\n{stderr}"
+        # (with a concurrent writer the named output may be that writer's)
+        assert not changed or concurrent, f"{where}: exit {exit_code} but files changed: {changed}"
+    stray = {p: c for p, c in changed.items() if not _allowed(p, folder, outputs)}
+    assert not stray, f"{where}: changed files other than the named output {outputs}: {stray}"
+    assert not [p for p in after if os.path.basename(p).startswith(".pf")], f"{where}: temporary left: {after}"
+    if expect is not None:
+        assert exit_code == expect, f"{where}: exit {exit_code}, expected {expect}\n{output}"
+
+
 def run_checked(folder, args, *, outputs=None, expect=None, input=None) -> CliRun:
-    """Run ``penfree args`` and assert the contract of the module docstring (see `cli`)."""
+    """Run ``penfree args`` in-process and assert the contract of the module docstring (see `cli`)."""
     folder = os.path.abspath(os.fspath(folder))
     args = [str(a) for a in args]
     outputs = inferred_outputs(args) if outputs is None else [os.fspath(o) for o in outputs]
@@ -119,17 +136,7 @@ def run_checked(folder, args, *, outputs=None, expect=None, input=None) -> CliRu
     exc = r.exception if not isinstance(r.exception, SystemExit) else None
     where = f"penfree {' '.join(args)}"
     assert exc is None, f"{where} raised {type(exc).__name__}: {exc}\n{r.output}"
-    assert "Traceback" not in r.output and "Exception ignored" not in r.output, f"{where}:\n{r.output}"
-    assert r.exit_code in EXIT_CODES, f"{where}: exit {r.exit_code}\n{r.output}"
-    if r.exit_code in (2, 130, 143):
-        lines = r.stderr.splitlines()
-        assert len(lines) == 1 and lines[0].startswith("penfree: "), f"{where}: stderr must be one line:\n{r.stderr}"
-        assert not changed, f"{where}: exit {r.exit_code} but files changed: {changed}"
-    stray = {p: c for p, c in changed.items() if not _allowed(p, folder, outputs)}
-    assert not stray, f"{where}: changed files other than the named output {outputs}: {stray}"
-    assert not [p for p in after if os.path.basename(p).startswith(".pf")], f"{where}: temporary left: {after}"
-    if expect is not None:
-        assert r.exit_code == expect, f"{where}: exit {r.exit_code}, expected {expect}\n{r.output}"
+    check_contract(where, r.exit_code, r.stdout, r.stderr, changed, after, folder, outputs, expect)
     return CliRun(r.exit_code, r.stdout, r.stderr, r.output, changed, r.exception)
 
 
@@ -142,5 +149,60 @@ def cli(tmp_path):
     """
     def run(*args, outputs=None, expect=None, folder=None, input=None):
         return run_checked(folder or tmp_path, args, outputs=outputs, expect=expect, input=input)
+
+    return run
+
+
+#: ``python -c`` program: penfree's main with test hooks (Python source) run when the write
+#: phase begins (signal deferral just installed) or when the command first reads its input.
+HOOKED_MAIN = """
+import json, sys
+import penfree.formats as formats
+import penfree.formats.atomic as atomic
+import penfree.formats.result as result
+spec = json.loads(sys.argv[1])
+install = atomic._install
+def hooked_install():
+    install()
+    exec(spec["during_write"] or "", {})
+atomic._install = hooked_install
+def before(read):
+    def hooked(*a, **k):
+        exec(spec["before_read"] or "", {})
+        return read(*a, **k)
+    return hooked
+formats.read_sequence = before(formats.read_sequence)
+result.read_result = before(result.read_result)
+from penfree.cli import main
+sys.argv = ["penfree"] + spec["args"]
+main()
+"""
+
+
+@pytest.fixture
+def cli_process(tmp_path):
+    """``cli_process(*args, during_write=None, before_read=None, expect=None)``: penfree in a subprocess.
+
+    For what needs a real process (signals, concurrent writers); the hooks are Python
+    source run inside penfree, e.g. ``"import os, signal; os.kill(os.getpid(), signal.SIGTERM)"``.
+    The file contract is asserted as in `cli`.
+    """
+    import json
+    import subprocess
+    import sys
+
+    def run(*args, during_write=None, before_read=None, outputs=None, expect=None, folder=None, concurrent=False):
+        folder_ = os.path.abspath(os.fspath(folder or tmp_path))
+        args = [str(a) for a in args]
+        outs = inferred_outputs(args) if outputs is None else [os.fspath(o) for o in outputs]
+        spec = json.dumps({"args": args, "during_write": during_write, "before_read": before_read})
+        before = snapshot(folder_)
+        p = subprocess.run([sys.executable, "-c", HOOKED_MAIN, spec], capture_output=True, text=True,
+                           cwd=folder_, timeout=600)
+        after = snapshot(folder_)
+        changed = diff(before, after)
+        check_contract(f"penfree {' '.join(args)} (subprocess)", p.returncode, p.stdout, p.stderr, changed, after,
+                       folder_, outs, expect, concurrent)
+        return CliRun(p.returncode, p.stdout, p.stderr, p.stdout + p.stderr, changed, None)
 
     return run
