@@ -133,6 +133,8 @@ def _dataset(f, name, where, prefix=""):
     except (KeyError, OSError, RuntimeError) as exc:  # dangling soft or external link
         raise FormatError(f"{prefix}{name} cannot be opened ({_h5_reason(exc)}) in {where}:/{prefix}{name}") from None
     if obj is None:
+        if f.get(name, getlink=True) is not None:  # the name exists, its target does not
+            raise FormatError(f"{prefix}{name} is a link to nothing in {where}:/{prefix}{name}")
         return None
     if not isinstance(obj, h5py.Dataset):
         what = "a group" if isinstance(obj, h5py.Group) else type(obj).__name__
@@ -234,6 +236,8 @@ def _read_obstacle(g, path, name, where) -> Obstacle:
         raise FormatError(f"obstacle must be a group with positions (T, M, 3) or (M, 3) in {where}:/{path}")
     ds_name = f"{path}/positions"
     ds = _dataset(g, "positions", where, prefix=path + "/")
+    if ds is None:  # a dangling link
+        raise FormatError(f"obstacle positions must be a dataset (T, M, 3) or (M, 3) in {where}:/{path}/positions")
     if ds.ndim == 2:
         pos = ds[()]
         if pos.shape[-1] != 3 or pos.dtype.kind not in "fiu":

@@ -173,6 +173,8 @@ def write_result(path, seq: Sequence, steps: dict, attrs: dict, groups: dict | N
 def _read_group(g, where, skip_deformed=False) -> dict:
     out = {}
     for key, obj in g.items():
+        if obj is None:
+            raise FormatError(f"{key} is a link to nothing in {where}:{g.name}/{key}")
         if isinstance(obj, h5py.Group):
             out[key] = _read_group(obj, where)
         elif skip_deformed and key == "deformed":

@@ -135,7 +135,11 @@ def run_checked(folder, args, *, outputs=None, expect=None, input=None) -> CliRu
     changed = diff(before, after)
     exc = r.exception if not isinstance(r.exception, SystemExit) else None
     where = f"penfree {' '.join(args)}"
-    assert exc is None, f"{where} raised {type(exc).__name__}: {exc}\n{r.output}"
+    if exc is not None:
+        import traceback
+
+        tb = "".join(traceback.format_exception(*r.exc_info))
+        raise AssertionError(f"{where} raised {type(exc).__name__}: {exc}\n{r.output}\n{tb}")
     check_contract(where, r.exit_code, r.stdout, r.stderr, changed, after, folder, outputs, expect)
     return CliRun(r.exit_code, r.stdout, r.stderr, r.output, changed, r.exception)
 
