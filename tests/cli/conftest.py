@@ -20,6 +20,7 @@ from __future__ import annotations
 import fnmatch
 import hashlib
 import os
+import warnings
 from dataclasses import dataclass
 
 import pytest
@@ -130,8 +131,13 @@ def run_checked(folder, args, *, outputs=None, expect=None, input=None) -> CliRu
     args = [str(a) for a in args]
     outputs = inferred_outputs(args) if outputs is None else [os.fspath(o) for o in outputs]
     before = snapshot(folder)
-    r = CliRunner().invoke(main, args, input=input)
+    with warnings.catch_warnings(record=True) as caught:  # a real run prints them on stderr
+        warnings.simplefilter("always")
+        r = CliRunner().invoke(main, args, input=input)
     after = snapshot(folder)
+    ours = [w for w in caught if not issubclass(w.category, (DeprecationWarning, PendingDeprecationWarning))]
+    assert not ours, f"penfree {' '.join(args)} printed warnings: " + "; ".join(
+        f"{w.category.__name__}: {w.message} ({w.filename}:{w.lineno})" for w in ours)
     changed = diff(before, after)
     exc = r.exception if not isinstance(r.exception, SystemExit) else None
     where = f"penfree {' '.join(args)}"
