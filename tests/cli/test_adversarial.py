@@ -469,3 +469,16 @@ def test_f5_sigterm_while_writing_other_outputs(cli_process, tmp_path, result, a
     src = tmp_path / "data" / "in.h5"
     args = [a.format(**{"in": src, "dir": tmp_path, "res": result}) for a in args]
     cli_process(*args, during_write=KILL.format("SIGTERM"), expect=143)
+
+
+# ------------------------------------------------------------ the promises, in --help and the README
+
+@pytest.mark.parametrize("command", ["deform", "convert", "report"])
+def test_overwrite_help_says_what_the_readme_promises(cli, command):
+    from penfree.cli.options import FILE_PROMISES
+
+    readme = open(os.path.join(os.path.dirname(__file__), "..", "..", "README.md"), encoding="utf-8").read()
+    section = readme.split("### What penfree promises about your files", 1)[1].split("\n\n", 2)[1]
+    assert " ".join(section.split()) == FILE_PROMISES
+    r = cli(command, "--help", expect=0)
+    assert " ".join(FILE_PROMISES.split()) in " ".join(r.stdout.split())
