@@ -482,3 +482,38 @@ def test_overwrite_help_says_what_the_readme_promises(cli, command):
     assert " ".join(section.split()) == FILE_PROMISES
     r = cli(command, "--help", expect=0)
     assert " ".join(FILE_PROMISES.split()) in " ".join(r.stdout.split())
+
+
+def _two_objects():
+    a = grid(n=4, T=4, thickness=0.0)
+    b = grid(n=4, T=4, thickness=0.0)
+    pos_b = b.positions + np.array([0.0, 0.0, 0.5])
+    pos_b[:, :, 0] -= 0.02 * np.arange(4)[:, None]
+    return Sequence(positions=np.concatenate([a.positions, pos_b], axis=1),
+                    faces=np.concatenate([a.faces, b.faces + 16]))
+
+
+@pytest.mark.parametrize("tamper", [None, "reflection", "missing"])
+def test_f4_report_rechecks_per_component_maps(cli, tmp_path, tamper):
+    src = _write(tmp_path / "in.h5", _two_objects())
+    res = tmp_path / "res.h5"
+    cli("deform", src, "-o", res, "--model", "per-component", expect=0)
+    with h5py.File(res, "r+") as f:
+        assert np.isnan(f["steps/A"][()]).all()
+        if tamper == "reflection":
+            comp = f["component_maps/A"][()]
+            comp[1, 0] = np.diag([1.0, -1.0, 1.0])
+            _replace_in(f, "component_maps/A", comp)
+        elif tamper == "missing":
+            del f["component_maps/A"]
+    r = cli("report", res, "-o", tmp_path / "rep", "--no-ladder", "--no-plots", "--fail-if-uncertified", "--json")
+    cert = json.loads(r.stdout)["files"][0]["certificate"]
+    if tamper is None:
+        assert r.exit_code == 0 and cert["all_certified"]
+    else:
+        assert r.exit_code == 1 and not cert["all_certified"]
+
+
+def _replace_in(f, name, data):
+    del f[name]
+    f[name] = data
