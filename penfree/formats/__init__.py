@@ -77,7 +77,11 @@ def read_sequence(path, format: str | None = None) -> Sequence:
     InputError, FormatError
         One line naming the file, the dataset and what was expected.
     """
+    from .hdf5 import check_readable
+
     path = os.fspath(path)
+    if os.path.isfile(path):
+        check_readable(path)  # "permission denied", not a wrong diagnosis of the content
     spec = _by_name(format) if format else FORMATS[detect_format(path)]
     seq = spec.reader(path)
     seq.origin = path
