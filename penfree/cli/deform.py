@@ -10,7 +10,7 @@ from .._version import __version__
 from ..constants import MODELS, PROJECTIONS
 from ..errors import InputError
 from .options import (
-    Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames,
+    FiniteFloat, Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames,
     set_threads, thickness_option, threads_option,
 )
 
@@ -25,7 +25,7 @@ from .options import (
                    "candidate with the fewest predicted CD passes; per-component: one map per object.")
 @click.option("--projection", type=click.Choice(PROJECTIONS), default="auto", show_default=True,
               help="How a map that fails the certificate is made safe.")
-@click.option("--margin", type=click.FloatRange(0.0, 1.0, max_open=True), default=None,
+@click.option("--margin", type=FiniteFloat(0.0, 1.0, max_open=True), default=None,
               help="Required lower bound m of sigma_min(I + tD) on [0,1] "
                    "(default: thickness / smallest start gap when a thickness applies, else 0).")
 @thickness_option

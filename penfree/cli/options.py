@@ -44,15 +44,18 @@ FILE_PROMISES = (
 overwrite_option = click.option("--overwrite", is_flag=True, help=FILE_PROMISES)
 
 
-def finite_option(ctx, param, value):
-    """click callback: NaN and infinities are not values of any penfree option."""
-    if value is not None and not math.isfinite(value):
-        raise click.BadParameter(f"{value} is not a finite number", ctx=ctx, param=param)
-    return value
+class FiniteFloat(click.FloatRange):
+    """A float option in an optional range; NaN and infinities are never valid (click's range lets NaN through)."""
+
+    def convert(self, value, param, ctx):
+        v = super().convert(value, param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{value} is not a finite number", param, ctx)
+        return v
 
 
 thickness_option = click.option(
-    "--thickness", type=click.FloatRange(min=0.0), default=None, callback=finite_option,
+    "--thickness", type=FiniteFloat(min=0.0), default=None,
     help="Contact distance (default: the file's thickness attribute, else 0).",
 )
 

@@ -7,7 +7,7 @@ import click
 from ..constants import DEFAULT_CD_SHARE, DEFAULT_FRAME_MS, DEFAULT_GAMMA
 from ..errors import InputError
 from .options import (
-    Progress, echo_json, finite_option, frames_option, json_option, overwrite_option, parse_frames, set_threads,
+    FiniteFloat, Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames, set_threads,
     threads_option,
 )
 
@@ -17,9 +17,9 @@ from .options import (
 @click.option("-o", "--output", "outdir", required=True, type=click.Path(file_okay=False),
               help="Report directory to write (report.md, report.json, *.png).")
 @overwrite_option
-@click.option("--cd-share", type=click.FloatRange(0.0, 1.0), default=DEFAULT_CD_SHARE, show_default=True,
+@click.option("--cd-share", type=FiniteFloat(0.0, 1.0), default=DEFAULT_CD_SHARE, show_default=True,
               help="Projected: fraction f of the frame time spent in collision detection.")
-@click.option("--frame-ms", type=click.FloatRange(min=0.0, min_open=True), default=DEFAULT_FRAME_MS,
+@click.option("--frame-ms", type=FiniteFloat(min=0.0, min_open=True), default=DEFAULT_FRAME_MS,
               show_default=True, help="Projected: baseline frame time T_frame in milliseconds.")
 @click.option("--replay", is_flag=True, help="Also estimate CD passes by replay (one bound query per pass).")
 @click.option("--no-ladder", is_flag=True, help="Skip the model ladder (re-fits every step with every model).")
@@ -28,13 +28,13 @@ from .options import (
 @threads_option
 @json_option
 @click.option("--fail-if-uncertified", is_flag=True, help="Check: every step's map is certified.")
-@click.option("--min-speedup", type=float, default=None, metavar="X", callback=finite_option,
+@click.option("--min-speedup", type=FiniteFloat(), default=None, metavar="X",
               help="Check: projected speedup (K_1pct rule) >= X.")
-@click.option("--min-hit-rate-gain", type=float, default=None, metavar="POINTS", callback=finite_option,
+@click.option("--min-hit-rate-gain", type=FiniteFloat(), default=None, metavar="POINTS",
               help="Check: hit rate vs the next frame gains >= POINTS percentage points (deformed - baseline).")
 @click.option("--baseline", "baseline_path", type=click.Path(), default=None, metavar="REPORT.json",
               help="Check: compare with a stored report.json (needs --max-regression).")
-@click.option("--max-regression", type=click.FloatRange(min=0.0), default=None, metavar="PCT",
+@click.option("--max-regression", type=FiniteFloat(min=0.0), default=None, metavar="PCT",
               help="Check: K_1pct, projected speedup and hit rate regress by at most PCT percent vs --baseline.")
 def command(files, outdir, overwrite, cd_share, frame_ms, replay, no_ladder, no_plots, frames, threads, as_json,
             fail_if_uncertified, min_speedup, min_hit_rate_gain, baseline_path, max_regression):

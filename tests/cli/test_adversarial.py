@@ -429,7 +429,11 @@ def test_f13_group_in_place_of_obstacle_positions_is_named(cli, tmp_path):
     ["report", "{dir}", "-o", "{dir}/rep"],
     ["verify", "{in}", "--no-such-option"],
     ["info"],
-], ids=["margin", "threads", "output-is-dir", "input-is-dir", "unknown-option", "missing-argument"])
+    ["deform", "{in}", "-o", "{out}", "--margin", "nan"],
+    ["report", "{in}", "-o", "{dir}/rep", "--cd-share", "nan"],
+    ["report", "{in}", "-o", "{dir}/rep", "--min-speedup", "inf"],
+], ids=["margin", "threads", "output-is-dir", "input-is-dir", "unknown-option", "missing-argument", "margin-nan",
+        "cd-share-nan", "min-speedup-inf"])
 def test_f14_option_errors_are_one_line(cli, tmp_path, args):
     src = _write(tmp_path / "in.h5", grid(n=4, T=3))
     args = [a.format(**{"in": src, "out": tmp_path / "out.h5", "dir": tmp_path}) for a in args]
