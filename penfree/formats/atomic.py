@@ -187,7 +187,7 @@ def write_phase():
         failed = False
     except BaseException:
         if outer:
-            for _, rollback in _Phase.actions:
+            for _, rollback in reversed(_Phase.actions):  # innermost first: shared new parents go last
                 rollback()
         raise
     finally:
@@ -252,10 +252,12 @@ def atomic_file(path, overwrite: bool = False):
         raise _exists_error(path)
     parent = os.path.dirname(os.path.abspath(path))
     with write_phase():
+        created = []
         try:
-            os.makedirs(parent, exist_ok=True)
+            created = _make_parents(parent)
             fd, tmp = tempfile.mkstemp(prefix=TMP_PREFIX, suffix=TMP_SUFFIX, dir=parent)
         except OSError as exc:
+            _remove_dirs(created)
             raise InputError(f"cannot create output {path}: {exc.strerror or exc}") from None
         os.close(fd)
 
@@ -267,7 +269,7 @@ def atomic_file(path, overwrite: bool = False):
             _Phase.committed.append(path)
             return None if overwrite else (lambda: _unlink(path))
 
-        _Phase.actions.append((commit, lambda: _unlink(tmp)))
+        _Phase.actions.append((commit, lambda: (_unlink(tmp), _remove_dirs(created))))
         os.chmod(tmp, _umask_mode(0o666))
         yield tmp
 
@@ -275,6 +277,23 @@ def atomic_file(path, overwrite: bool = False):
 def _unlink(p):
     with suppress(OSError):
         os.unlink(p)
+
+
+def _make_parents(parent: str) -> list:
+    """Create `parent` and its missing ancestors; returns those created, deepest first."""
+    missing, p = [], parent
+    while not os.path.isdir(p) and os.path.dirname(p) != p:
+        missing.append(p)
+        p = os.path.dirname(p)
+    os.makedirs(parent, exist_ok=True)
+    return missing
+
+
+def _remove_dirs(created: list) -> None:
+    """Remove directories `_make_parents` created (if still empty): a failed write leaves nothing."""
+    for d in created:
+        with suppress(OSError):
+            os.rmdir(d)
 
 
 @contextmanager
@@ -297,10 +316,12 @@ def atomic_dir(path, overwrite: bool = False):
         raise _exists_error(path)
     parent = os.path.dirname(path)
     with write_phase():
+        created = []
         try:
-            os.makedirs(parent, exist_ok=True)
+            created = _make_parents(parent)
             tmp = tempfile.mkdtemp(prefix=TMP_PREFIX, suffix=TMP_SUFFIX, dir=parent)
         except OSError as exc:
+            _remove_dirs(created)
             raise InputError(f"cannot create output {path}: {exc.strerror or exc}") from None
 
         def commit():
@@ -322,7 +343,7 @@ def atomic_dir(path, overwrite: bool = False):
             _Phase.committed.append(path)
             return undo
 
-        _Phase.actions.append((commit, lambda: shutil.rmtree(tmp, ignore_errors=True)))
+        _Phase.actions.append((commit, lambda: (shutil.rmtree(tmp, ignore_errors=True), _remove_dirs(created))))
         os.chmod(tmp, _umask_mode(0o777))
         yield tmp
 

@@ -467,8 +467,10 @@ def test_f5_signals_leave_nothing_and_one_line(cli_process, tmp_path, sig, code,
 
 
 @pytest.mark.parametrize("args", [["convert", "{in}", "{dir}/out.xdmf"], ["convert", "{in}", "{dir}/m/f_%03d.obj"],
+                                  ["convert", "{in}", "{dir}/new/deeper/out.xdmf"],
+                                  ["deform", "{in}", "-o", "{dir}/new/deeper/out.h5"],
                                   ["report", "{res}", "-o", "{dir}/rep", "--no-ladder", "--no-plots"]],
-                         ids=["xdmf", "meshseq", "report"])
+                         ids=["xdmf", "meshseq", "xdmf-new-dirs", "deform-new-dirs", "report"])
 def test_f5_sigterm_while_writing_other_outputs(cli_process, tmp_path, result, args):
     src = tmp_path / "data" / "in.h5"
     args = [a.format(**{"in": src, "dir": tmp_path, "res": result}) for a in args]
