@@ -102,14 +102,18 @@ def _umask_mode(mode: int) -> int:
 
 # --- the write phase: signals deferred, outputs committed together --------------------------
 
-class _Phase:
-    """State of the (process-wide, re-entrant) write phase."""
+class _PhaseState(threading.local):
+    """State of the re-entrant write phase, per thread (signals reach the main thread's)."""
 
-    depth = 0
-    pending = None  # first signal number received while deferred
-    saved: dict = {}
-    actions: list = []  # [commit, rollback] pairs registered by atomic_file / atomic_dir
-    committed: list = []  # outputs made visible since the last `reset_committed`
+    def __init__(self):
+        self.depth = 0
+        self.pending = None  # first signal number received while deferred
+        self.saved = {}
+        self.actions = []  # [commit, rollback] pairs registered by atomic_file / atomic_dir / on_commit
+        self.committed = []  # outputs made visible since the last `reset_committed`
+
+
+_Phase = _PhaseState()
 
 
 def _defer(signum, frame):
@@ -267,7 +271,7 @@ def atomic_file(path, overwrite: bool = False):
             else:
                 _link_new(tmp, path)
             _Phase.committed.append(path)
-            return None if overwrite else (lambda: _unlink(path))
+            return None if overwrite else (lambda: (_unlink(path), _Phase.committed.remove(path)))
 
         _Phase.actions.append((commit, lambda: (_unlink(tmp), _remove_dirs(created))))
         os.chmod(tmp, _umask_mode(0o666))
@@ -339,7 +343,7 @@ def atomic_dir(path, overwrite: bool = False):
                 except FileExistsError:
                     raise _exists_error(path) from None
                 os.rename(tmp, path)
-                undo = (lambda: shutil.rmtree(path, ignore_errors=True))
+                undo = (lambda: (shutil.rmtree(path, ignore_errors=True), _Phase.committed.remove(path)))
             _Phase.committed.append(path)
             return undo
 

@@ -131,3 +131,16 @@ def test_new_directory_output_is_exclusive(tmp_path):
             out.mkdir()  # another writer created it meanwhile
             (out / "theirs.md").write_text("faster")
     assert _listing(out) == ["theirs.md"] and _listing(tmp_path) == ["rep"]
+
+
+def test_writers_in_threads_do_not_share_a_write_phase(tmp_path):
+    from concurrent.futures import ThreadPoolExecutor
+
+    def write(k):
+        with atomic_file(tmp_path / f"out{k}.txt") as tmp:
+            open(tmp, "w").write(str(k))
+
+    with ThreadPoolExecutor(4) as pool:
+        list(pool.map(write, range(16)))
+    assert _listing(tmp_path) == sorted(f"out{k}.txt" for k in range(16))
+    assert all((tmp_path / f"out{k}.txt").read_text() == str(k) for k in range(16))
