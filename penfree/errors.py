@@ -23,3 +23,11 @@ class OutputExistsError(InputError):
 
 class CertificateError(PenfreeError):
     """A map about to be written failed the exact certificate (an internal bug, never user input)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C (SIGINT) or SIGTERM; the CLI exits 128 + `signum` (130 / 143) after cleaning up."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = int(signum)

@@ -9,6 +9,39 @@ import numpy as np
 
 from .errors import InputError
 
+#: Supported magnitudes: the largest |coordinate| of a scene, and the largest weight, lie in
+#: [SCALE_MIN, SCALE_MAX]. Inside it, squared distances and the cubic CCD / certificate terms
+#: stay normal float64 numbers; outside it a scene is refused (rescale it) rather than misjudged.
+SCALE_MIN, SCALE_MAX = 1e-100, 1e100
+
+
+def check_scale(a, where, name) -> None:
+    """Refuse values whose largest magnitude lies outside [SCALE_MIN, SCALE_MAX] (all-zero passes)."""
+    big = float(np.max(np.abs(a))) if np.size(a) else 0.0
+    if big != 0.0 and not SCALE_MIN <= big <= SCALE_MAX:
+        raise InputError(f"{name} must have its largest magnitude in the supported range [{SCALE_MIN:g}, "
+                         f"{SCALE_MAX:g}]; got {big:.3g} in {where}:/{name} (rescale the scene)")
+
+
+def check_weights(w, n, where) -> np.ndarray:
+    """Per-vertex fit weights: ``(n,)``, numeric, finite, >= 0, not all zero, in the supported range."""
+    w = np.asarray(w)
+    if w.dtype.kind not in "biuf":
+        raise InputError(f"weights must be numeric; got {w.dtype} in {where}")
+    w = w.astype(np.float64)
+    if w.shape != (n,):
+        raise InputError(f"weights must be ({n},) to match positions; got {w.shape} in {where}")
+    if not np.isfinite(w).all():
+        raise InputError(f"weights must be finite and >= 0; found NaN or Inf in {where}")
+    if (w < 0).any():
+        raise InputError(f"weights must be finite and >= 0; got min {w.min():g} in {where}")
+    if not w.max() > 0:
+        raise InputError(f"weights must not all be zero in {where}")
+    if not SCALE_MIN <= w.max() <= SCALE_MAX:
+        raise InputError(f"weights must have their largest value in the supported range [{SCALE_MIN:g}, "
+                         f"{SCALE_MAX:g}]; got {w.max():.3g} in {where} (rescale them)")
+    return w
+
 
 @dataclass
 class Obstacle:
@@ -142,17 +175,9 @@ class Sequence:
         n = pos.shape[1]
         self.edges = _check_topology(self.edges, 2, n, where, "edges")
         self.faces = _check_topology(self.faces, 3, n, where, "faces")
+        check_scale(pos, where, "positions")
         if self.weights is not None:
-            w = np.asarray(self.weights, dtype=np.float64)
-            if w.shape != (n,):
-                raise InputError(f"weights must be ({n},) to match positions; got {w.shape} in {where}:/weights")
-            if not np.isfinite(w).all():
-                raise InputError(f"weights must be finite and >= 0; found NaN or Inf in {where}:/weights")
-            if (w < 0).any():
-                raise InputError(f"weights must be finite and >= 0; got min {w.min():g} in {where}:/weights")
-            if not w.sum() > 0:
-                raise InputError(f"weights must not all be zero in {where}:/weights")
-            self.weights = w
+            self.weights = check_weights(self.weights, n, f"{where}:/weights")
         if self.components is not None:
             c = np.asarray(self.components)
             if c.shape != (n,) or not np.issubdtype(c.dtype, np.integer):
@@ -166,7 +191,17 @@ class Sequence:
             t = float("nan")
         if not np.isfinite(t) or t < 0:
             raise InputError(f"thickness must be finite and >= 0; got {self.thickness!r} in {where}:@thickness")
+        if t > SCALE_MAX:
+            raise InputError(f"thickness must be at most {SCALE_MAX:g} (the supported range); got {t:g} in {where}:@thickness")
         self.thickness = t
+        if self.dt is not None:
+            try:
+                dt = float(self.dt)
+            except (TypeError, ValueError):
+                dt = float("nan")
+            if not (np.isfinite(dt) and dt > 0):
+                raise InputError(f"dt must be a finite number > 0; got {self.dt!r} in {where}:@dt")
+            self.dt = dt
         for ob in self.obstacles:
             _check_obstacle(ob, pos.shape[0], where)
         return self
@@ -197,6 +232,8 @@ def _check_topology(arr, k, n, where, name):
 
 
 def _check_obstacle(ob: Obstacle, T: int, where: str):
+    if not isinstance(ob.name, str) or not ob.name or "/" in ob.name or ob.name in (".", ".."):
+        raise InputError(f"obstacle names must be non-empty and hold no '/'; got {ob.name!r} in {where}:/obstacles")
     ds = f"{where}:/obstacles/{ob.name}"
     p = np.asarray(ob.positions)
     if p.ndim == 2 and p.shape[1] == 3:
@@ -205,8 +242,11 @@ def _check_obstacle(ob: Obstacle, T: int, where: str):
         pass
     else:
         raise InputError(f"obstacle positions must be ({T}, M, 3) or (M, 3); got {p.shape} in {ds}/positions")
+    if p.dtype.kind not in "biuf":
+        raise InputError(f"obstacle positions must be numeric; got {p.dtype} in {ds}/positions")
     if not np.isfinite(p).all():
         raise InputError(f"obstacle positions must be finite in {ds}/positions")
+    check_scale(p, where, f"obstacles/{ob.name}/positions")
     ob.positions = p.astype(np.float64)
     m = p.shape[-2]
     ob.faces = _check_topology(ob.faces, 3, m, where, f"obstacles/{ob.name}/faces")

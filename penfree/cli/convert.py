@@ -28,14 +28,14 @@ def command(input_path, output_path, out_format, in_format, deformed, overwrite,
       penfree convert deformed.h5 deformed.usda --deformed # recorded + deformed prims
       penfree convert sim.usd frames.h5 --prim /World/Cloth
     """
-    from ..formats import detect_format, output_paths, read_sequence, write_sequence
-    from ..formats.atomic import check_output
+    from ..formats import (
+        check_outputs, detect_format, input_files, output_files, output_paths, read_sequence, write_sequence,
+    )
 
     out_format = out_format or detect_format(output_path, writing=True)
-    in_format = in_format or detect_format(input_path)
-    inputs = output_paths(input_path, in_format)  # XDMF input: its heavy-data file too
-    for p in output_paths(output_path, out_format):
-        check_output(p, overwrite, inputs=inputs)
+    in_format = in_format or ("hdf5" if deformed else detect_format(input_path))
+    inputs = input_files(input_path, in_format)  # mesh sequences: every frame; XDMF: its heavy-data file too
+    check_outputs(output_paths(output_path, out_format), inputs, overwrite)  # before reading anything
     if deformed and out_format == "usd":  # both the recorded frames and the deformed states
         from ..formats.result import read_result
         from ..formats.usd import write_usd_result
@@ -51,5 +51,7 @@ def command(input_path, output_path, out_format, in_format, deformed, overwrite,
         seq = deformed_sequence(read_result(input_path))
     else:
         seq = read_sequence(input_path, format=in_format, prims=usd_prims, obstacles=usd_obstacles)
+    # now that the frame count is known: every file the writer will create, replace or remove
+    check_outputs(output_files(output_path, out_format, seq.n_frames), inputs, overwrite)
     write_sequence(output_path, seq, format=out_format, overwrite=overwrite)
     click.echo(f"wrote {output_path} ({out_format}): {seq.n_frames} frames, {seq.n_vertices} vertices, {seq.kind}")

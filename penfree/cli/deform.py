@@ -10,7 +10,7 @@ from .._version import __version__
 from ..constants import MODELS, PROJECTIONS
 from ..errors import InputError
 from .options import (
-    Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames,
+    FiniteFloat, Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames,
     set_threads, thickness_option, threads_option, usd_options,
 )
 
@@ -25,7 +25,7 @@ from .options import (
                    "candidate with the fewest predicted CD passes; per-component: one map per object.")
 @click.option("--projection", type=click.Choice(PROJECTIONS), default="auto", show_default=True,
               help="How a map that fails the certificate is made safe.")
-@click.option("--margin", type=click.FloatRange(0.0, 1.0, max_open=True), default=None,
+@click.option("--margin", type=FiniteFloat(0.0, 1.0, max_open=True), default=None,
               help="Required lower bound m of sigma_min(I + tD) on [0,1] "
                    "(default: thickness / smallest start gap when a thickness applies, else 0).")
 @thickness_option
@@ -48,11 +48,13 @@ def command(input_path, output_path, model, projection, margin, thickness, frame
     to the deformed state is certified penetration-free (exact test) before it is written.
     """
     from ..core.pipeline.deform import deform_sequence, summarize_steps
-    from ..formats import read_sequence
-    from ..formats.atomic import check_output
+    from ..formats import check_outputs, input_files, read_sequence
     from ..formats.result import write_result
 
-    check_output(output_path, overwrite, inputs=[input_path])
+    from ..formats.atomic import check_file_name
+
+    check_file_name(output_path)
+    check_outputs([output_path], input_files(input_path, in_format), overwrite)
     frame_slice = parse_frames(frames)
     set_threads(threads)
     seq = read_sequence(input_path, format=in_format, prims=usd_prims, obstacles=usd_obstacles)
@@ -103,18 +105,24 @@ def _read_weights(path, name, seq):
         return seq.weights
     import h5py
 
+    from ..formats.hdf5 import open_h5
+    from ..sequence import check_weights
+
+    where = f"{path}:/{name}"
     try:
-        with h5py.File(path, "r") as f:
-            if name not in f:
-                raise InputError(f"--weights {name}: no dataset {name!r} in {path}")
-            w = np.asarray(f[name][()], dtype=np.float64)
-    except OSError:
-        raise InputError(f"--weights {name}: {path} is not an HDF5 file; only HDF5 inputs have named datasets") from None
-    if w.shape != (seq.n_vertices,):
-        raise InputError(f"weights must be ({seq.n_vertices},); got {w.shape} in {path}:/{name}")
-    if not np.isfinite(w).all() or (w < 0).any() or not w.sum() > 0:
-        raise InputError(f"weights must be finite, >= 0 and not all zero in {path}:/{name}")
-    return w
+        with open_h5(path) as f:
+            obj = f.get(name)
+            if obj is None:
+                raise InputError(f"--weights {name}: no dataset {name!r} in {where}")
+            if not isinstance(obj, h5py.Dataset) or obj.dtype.kind not in "iuf":
+                what = "a group" if isinstance(obj, h5py.Group) else f"a {obj.dtype} dataset"
+                raise InputError(f"--weights {name}: expected a numeric ({seq.n_vertices},) dataset; got {what} in {where}")
+            w = np.asarray(obj[()], dtype=np.float64)
+    except InputError as exc:
+        if "not an HDF5 file" in str(exc):
+            raise InputError(f"--weights {name}: {path} is not an HDF5 file; only HDF5 inputs have named datasets") from None
+        raise
+    return check_weights(w, seq.n_vertices, where)
 
 
 def _print_summary(s, seq):

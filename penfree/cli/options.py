@@ -1,6 +1,7 @@
 """Options shared by several commands, defined once."""
 
 import json
+import math
 import sys
 
 import click
@@ -32,9 +33,29 @@ threads_option = click.option(
     help="Numba threads (default: all cores). Results do not depend on it.",
 )
 json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable JSON on stdout.")
-overwrite_option = click.option("--overwrite", is_flag=True, help="Replace an existing output.")
+#: What penfree promises about your files; the README section of that name says the same.
+FILE_PROMISES = (
+    "Replace an existing output. penfree never modifies an input, and refuses an output that is an input "
+    "under any name (other spelling, pattern, hard link). --overwrite replaces the named output only: a report "
+    "directory that holds files penfree did not write, or an input, is refused. Outputs appear complete or "
+    "not at all: an error, Ctrl-C or SIGTERM leaves no output and no temporary file. Without --overwrite, a new "
+    "output is created exclusively: of two runs writing it at once, the second fails with 'output exists'."
+)
+overwrite_option = click.option("--overwrite", is_flag=True, help=FILE_PROMISES)
+
+
+class FiniteFloat(click.FloatRange):
+    """A float option in an optional range; NaN and infinities are never valid (click's range lets NaN through)."""
+
+    def convert(self, value, param, ctx):
+        v = super().convert(value, param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{value} is not a finite number", param, ctx)
+        return v
+
+
 thickness_option = click.option(
-    "--thickness", type=click.FloatRange(min=0.0), default=None,
+    "--thickness", type=FiniteFloat(min=0.0), default=None,
     help="Contact distance (default: the file's thickness attribute, else 0).",
 )
 

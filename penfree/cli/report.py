@@ -7,7 +7,8 @@ import click
 from ..constants import DEFAULT_CD_SHARE, DEFAULT_FRAME_MS, DEFAULT_GAMMA
 from ..errors import InputError
 from .options import (
-    Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames, set_threads, threads_option,
+    FiniteFloat, Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames, set_threads,
+    threads_option,
 )
 
 
@@ -16,9 +17,9 @@ from .options import (
 @click.option("-o", "--output", "outdir", required=True, type=click.Path(file_okay=False),
               help="Report directory to write (report.md, report.json, *.png).")
 @overwrite_option
-@click.option("--cd-share", type=click.FloatRange(0.0, 1.0), default=DEFAULT_CD_SHARE, show_default=True,
+@click.option("--cd-share", type=FiniteFloat(0.0, 1.0), default=DEFAULT_CD_SHARE, show_default=True,
               help="Projected: fraction f of the frame time spent in collision detection.")
-@click.option("--frame-ms", type=click.FloatRange(min=0.0, min_open=True), default=DEFAULT_FRAME_MS,
+@click.option("--frame-ms", type=FiniteFloat(min=0.0, min_open=True), default=DEFAULT_FRAME_MS,
               show_default=True, help="Projected: baseline frame time T_frame in milliseconds.")
 @click.option("--replay", is_flag=True, help="Also estimate CD passes by replay (one bound query per pass).")
 @click.option("--no-ladder", is_flag=True, help="Skip the model ladder (re-fits every step with every model).")
@@ -27,13 +28,13 @@ from .options import (
 @threads_option
 @json_option
 @click.option("--fail-if-uncertified", is_flag=True, help="Check: every step's map is certified.")
-@click.option("--min-speedup", type=float, default=None, metavar="X",
+@click.option("--min-speedup", type=FiniteFloat(), default=None, metavar="X",
               help="Check: projected speedup (K_1pct rule) >= X.")
-@click.option("--min-hit-rate-gain", type=float, default=None, metavar="POINTS",
+@click.option("--min-hit-rate-gain", type=FiniteFloat(), default=None, metavar="POINTS",
               help="Check: hit rate vs the next frame gains >= POINTS percentage points (deformed - baseline).")
 @click.option("--baseline", "baseline_path", type=click.Path(), default=None, metavar="REPORT.json",
               help="Check: compare with a stored report.json (needs --max-regression).")
-@click.option("--max-regression", type=click.FloatRange(min=0.0), default=None, metavar="PCT",
+@click.option("--max-regression", type=FiniteFloat(min=0.0), default=None, metavar="PCT",
               help="Check: K_1pct, projected speedup and hit rate regress by at most PCT percent vs --baseline.")
 def command(files, outdir, overwrite, cd_share, frame_ms, replay, no_ladder, no_plots, frames, threads, as_json,
             fail_if_uncertified, min_speedup, min_hit_rate_gain, baseline_path, max_regression):
@@ -47,14 +48,13 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, no_ladder, no_
       penfree report deformed.h5 -o report/ --min-speedup 1.1 --fail-if-uncertified
       penfree report deformed.h5 -o new/ --baseline old/report.json --max-regression 5
     """
-    from ..formats.atomic import check_output
     from ..report.build import (
-        load_report_json, make_file_report, open_result, run_checks, select_steps, stored_stats, write_report,
+        check_report_dir, load_report_json, make_file_report, open_result, run_checks, select_steps, stored_stats, write_report,
     )
 
     if (baseline_path is None) != (max_regression is None):
         raise InputError("--baseline and --max-regression go together; give both or neither")
-    check_output(outdir, overwrite, inputs=files)
+    check_report_dir(outdir, overwrite, inputs=list(files) + ([baseline_path] if baseline_path else []))
     frame_slice = parse_frames(frames)
     set_threads(threads)
     baseline = load_report_json(baseline_path) if baseline_path else None

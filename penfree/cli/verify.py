@@ -3,6 +3,7 @@
 import click
 
 from ..constants import DEFAULT_MAX_PAIRS
+from ..errors import InputError
 from .options import (
     Progress, echo_json, frames_option, json_option, parse_frames, set_threads,
     thickness_option, threads_option,
@@ -15,13 +16,24 @@ def _pair_text(p):
     return text + (f" toi>={p[3]:.6g}" if len(p) > 3 else "")
 
 
+def _round_down(x, digits=6):
+    """`x` with `digits` significant digits, never above `x` (a printed lower bound stays one)."""
+    y = x
+    text = f"{y:.{digits}g}"
+    while float(text) > x:
+        y *= 1.0 - 10.0 ** -digits
+        text = f"{y:.{digits}g}"
+    return text
+
+
 def _step_line(step):
     r = step.result
     head = f"step {step.frame:>5} -> {step.target}: "
     if step.ok:
-        sep = "inf" if r.min_separation == float("inf") else f"{r.min_separation:.6g}"
+        # a lower bound of the distance of every non-adjacent pair over the step, never above the truth
+        sep = "> 0" if not r.min_separation > 0 else f">= {_round_down(r.min_separation)}"
         cert = "" if step.certificate is None else f", certificate {'ok' if step.certificate else 'FAILED (unclaimed)'}"
-        return head + f"OK ({r.method}, min separation >= {sep}{cert})"
+        return head + f"OK ({r.method}, min separation {sep}{cert})"
     parts = []
     if not r.start_ok:
         parts.append(f"start state: {r.n_start_violations} pair(s) [{', '.join(map(_pair_text, r.start_violations))}]")
@@ -60,6 +72,9 @@ def command(path, thickness, frames, threads, as_json, max_pairs, mode):
     with Progress(n_steps(path, frame_slice), "verify") as bar:
         report = verify_file(path, thickness=thickness, frames=frame_slice, mode=mode,
                              max_pairs=max_pairs, progress=bar)
+    if not report.steps:  # "all steps safe" about nothing would be a false claim
+        raise InputError(f"--frames {frames} selects no step of {path} ({report.kind}); "
+                         f"nothing to verify" if frames is not None else f"{path} holds no step to verify")
     if as_json:
         echo_json(report.to_dict())
     else:

@@ -28,7 +28,8 @@ from ..sequence import Sequence
 from ._registry import FORMATS, register
 from . import hdf5, npz, meshseq, xdmf, usd  # noqa: E402,F401  (each registers itself)
 
-__all__ = ["read_sequence", "write_sequence", "detect_format", "output_paths", "register", "FORMATS"]
+__all__ = ["read_sequence", "write_sequence", "detect_format", "output_paths", "input_files", "output_files",
+           "check_outputs", "register", "FORMATS"]
 
 
 def _by_name(format: str):
@@ -81,7 +82,11 @@ def read_sequence(path, format: str | None = None, **options) -> Sequence:
     InputError, FormatError
         One line naming the file, the dataset and what was expected.
     """
+    from .hdf5 import check_readable
+
     path = os.fspath(path)
+    if os.path.isfile(path):
+        check_readable(path)  # "permission denied", not a wrong diagnosis of the content
     spec = _by_name(format) if format else FORMATS[detect_format(path)]
     options = {k: v for k, v in options.items() if v}
     for key in options:
@@ -112,3 +117,40 @@ def output_paths(path, format: str | None = None) -> list:
     path = os.fspath(path)
     spec = _by_name(format) if format else FORMATS[detect_format(path, writing=True)]
     return list(spec.outputs(path)) if spec.outputs is not None else [path]
+
+
+def input_files(path, format: str | None = None) -> list:
+    """Every file that ``read_sequence(path, format)`` reads (mesh sequences: each frame file)."""
+    path = os.fspath(path)
+    spec = _by_name(format) if format else FORMATS[detect_format(path)]
+    return list(spec.input_files(path)) if spec.input_files is not None else [path]
+
+
+def output_files(path, format: str | None = None, n_frames: int = 0) -> list:
+    """Every file that writing `n_frames` frames to `path` creates, replaces or removes."""
+    path = os.fspath(path)
+    spec = _by_name(format) if format else FORMATS[detect_format(path, writing=True)]
+    if spec.output_files is not None:
+        return list(spec.output_files(path, n_frames))
+    return output_paths(path, format)
+
+
+def check_outputs(outputs, inputs, overwrite: bool = False) -> None:
+    """Refuse when any output file is any input file (under any spelling, hard links too) or exists.
+
+    Parameters
+    ----------
+    outputs : list of str
+        `output_files` of the output.
+    inputs : list of str
+        `input_files` of every input.
+    overwrite : bool
+
+    Raises
+    ------
+    InputError, OutputExistsError
+    """
+    from .atomic import check_output
+
+    for p in outputs:
+        check_output(p, overwrite, inputs=inputs)

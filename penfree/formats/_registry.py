@@ -27,6 +27,10 @@ class FormatSpec:
         Every path the writer creates (XDMF writes a heavy-data file beside the XML).
     options : tuple of str
         Keyword options the reader accepts besides the path (USD: ``prims``, ``obstacles``).
+    input_files : callable ``(path: str) -> list of str`` or None
+        Every file the reader reads (a mesh sequence: its frame files); None: ``[path]``.
+    output_files : callable ``(path: str, n_frames: int) -> list of str`` or None
+        Every file writing `n_frames` frames creates, replaces or removes; None: `outputs`.
     """
 
     name: str
@@ -36,12 +40,15 @@ class FormatSpec:
     sniff: Optional[Callable] = None
     outputs: Optional[Callable] = None
     options: tuple = ()
+    input_files: Optional[Callable] = None
+    output_files: Optional[Callable] = None
 
 
 FORMATS: dict = {}
 
 
-def register(name, extensions, reader, writer, sniff=None, outputs=None, options=()) -> None:
+def register(name, extensions, reader, writer, sniff=None, outputs=None, options=(), input_files=None,
+             output_files=None) -> None:
     """Register a format under `name` for `extensions` (later registrations replace)."""
     exts = tuple(e.lower() if e.startswith(".") else "." + e.lower() for e in extensions)
-    FORMATS[name] = FormatSpec(name, exts, reader, writer, sniff, outputs, tuple(options))
+    FORMATS[name] = FormatSpec(name, exts, reader, writer, sniff, outputs, tuple(options), input_files, output_files)

@@ -44,6 +44,15 @@ def has_h5_magic(path) -> bool:
         return False
 
 
+def check_readable(path) -> None:
+    """InputError naming `path` when it cannot be opened for reading (permissions, ...)."""
+    try:
+        with open(path, "rb"):
+            pass
+    except OSError as exc:
+        raise InputError(f"cannot read {path}: {exc.strerror or exc}") from None
+
+
 @contextmanager
 def open_h5(path, mode="r"):
     """``h5py.File`` with OS errors mapped to one-line InputError/FormatError naming the file."""
@@ -52,6 +61,7 @@ def open_h5(path, mode="r"):
         raise InputError(f"no such file: {path}")
     if os.path.isdir(path):
         raise InputError(f"{path} is a directory; expected an HDF5 file")
+    check_readable(path)
     try:
         f = h5py.File(path, mode)
     except OSError as exc:
@@ -60,8 +70,9 @@ def open_h5(path, mode="r"):
         raise FormatError(f"{path} is not an HDF5 file (no HDF5 signature); expected HDF5 layout v1") from None
     try:
         yield f
-    except OSError as exc:  # damage discovered while reading a dataset
-        raise FormatError(f"{path} is damaged: {_h5_reason(exc)}; expected a complete HDF5 file") from None
+    except (OSError, KeyError, RuntimeError) as exc:  # damage or a dangling link found while reading
+        raise FormatError(f"{path} is damaged or holds a broken link: {_h5_reason(exc)}; "
+                          f"expected a complete HDF5 file") from None
     finally:
         f.close()
 
@@ -86,12 +97,20 @@ def encode_attr(value):
     return "json:" + json.dumps(value, default=json_default)
 
 
-def decode_attr(value):
-    """The inverse of :func:`encode_attr` (numpy scalars become Python scalars)."""
+def decode_attr(value, where="<attribute>"):
+    """The inverse of :func:`encode_attr` (numpy scalars become Python scalars).
+
+    Raises FormatError naming `where` (``file:@name``) for a ``"json:..."`` string that is not JSON.
+    """
     if isinstance(value, bytes):
         value = value.decode("utf-8", "replace")
     if isinstance(value, str):
-        return json.loads(value[5:]) if value.startswith("json:") else value
+        if not value.startswith("json:"):
+            return value
+        try:
+            return json.loads(value[5:])
+        except ValueError:
+            raise FormatError(f"attribute starting with 'json:' must hold JSON; got {value[:40]!r} in {where}") from None
     if isinstance(value, np.generic):
         return value.item()
     return value
@@ -102,18 +121,24 @@ def write_attrs(obj, attrs: dict) -> None:
         obj.attrs[key] = encode_attr(value)
 
 
-def read_attrs(obj) -> dict:
-    return {k: decode_attr(v) for k, v in obj.attrs.items()}
+def read_attrs(obj, where="") -> dict:
+    return {k: decode_attr(v, f"{where}:@{k}") for k, v in obj.attrs.items()}
 
 
 # --- reading -----------------------------------------------------------------
 
-def _dataset(f, name, where):
-    obj = f.get(name)
+def _dataset(f, name, where, prefix=""):
+    try:
+        obj = f.get(name)
+    except (KeyError, OSError, RuntimeError) as exc:  # dangling soft or external link
+        raise FormatError(f"{prefix}{name} cannot be opened ({_h5_reason(exc)}) in {where}:/{prefix}{name}") from None
     if obj is None:
+        if f.get(name, getlink=True) is not None:  # the name exists, its target does not
+            raise FormatError(f"{prefix}{name} is a link to nothing in {where}:/{prefix}{name}")
         return None
     if not isinstance(obj, h5py.Dataset):
-        raise FormatError(f"{name} must be a dataset; got a group in {where}:/{name}")
+        what = "a group" if isinstance(obj, h5py.Group) else type(obj).__name__
+        raise FormatError(f"{prefix}{name} must be a dataset; got {what} in {where}:/{prefix}{name}")
     return obj
 
 
@@ -142,7 +167,7 @@ def read_positions(ds, where, name="positions") -> np.ndarray:
 
 def _read_array(g, name, where, kind, prefix=""):
     full = prefix + name
-    ds = _dataset(g, name, where)
+    ds = _dataset(g, name, where, prefix)
     if ds is None:
         return None
     a = ds[()]
@@ -156,7 +181,7 @@ def _read_array(g, name, where, kind, prefix=""):
 def _scalar_attr(attrs, key, where):
     if key not in attrs:
         return None
-    value = decode_attr(attrs[key])
+    value = decode_attr(attrs[key], f"{where}:@{key}")
     if isinstance(value, np.ndarray) and value.size == 1:
         value = value.reshape(()).item()
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
@@ -168,7 +193,7 @@ def read_from_h5(f: h5py.File, where: str) -> Sequence:
     """The layout-v1 sequence held by an open file (not yet validated)."""
     version = f.attrs.get("penfree_format")
     if version is not None:
-        version = decode_attr(version)
+        version = decode_attr(version, f"{where}:@penfree_format")
         if not isinstance(version, int) or isinstance(version, bool):
             raise FormatError(f"penfree_format must be an integer; got {version!r} in {where}:@penfree_format")
         if version > FORMAT_VERSION or version < 1:
@@ -195,8 +220,8 @@ def read_from_h5(f: h5py.File, where: str) -> Sequence:
     if seq.dt is not None and not seq.dt > 0:
         raise InputError(f"attribute dt must be > 0; got {seq.dt!r} in {where}:@dt")
     if "source" in attrs:
-        seq.source = str(decode_attr(attrs["source"]))
-    seq.attrs = {k: decode_attr(v) for k, v in attrs.items() if k not in RESERVED_ATTRS}
+        seq.source = str(decode_attr(attrs["source"], f"{where}:@source"))
+    seq.attrs = {k: decode_attr(v, f"{where}:@{k}") for k, v in attrs.items() if k not in RESERVED_ATTRS}
     obs = f.get("obstacles")
     if obs is not None:
         if not isinstance(obs, h5py.Group):
@@ -210,7 +235,9 @@ def _read_obstacle(g, path, name, where) -> Obstacle:
     if not isinstance(g, h5py.Group) or "positions" not in g:
         raise FormatError(f"obstacle must be a group with positions (T, M, 3) or (M, 3) in {where}:/{path}")
     ds_name = f"{path}/positions"
-    ds = _dataset(g, "positions", where)
+    ds = _dataset(g, "positions", where, prefix=path + "/")
+    if ds is None:  # a dangling link
+        raise FormatError(f"obstacle positions must be a dataset (T, M, 3) or (M, 3) in {where}:/{path}/positions")
     if ds.ndim == 2:
         pos = ds[()]
         if pos.shape[-1] != 3 or pos.dtype.kind not in "fiu":

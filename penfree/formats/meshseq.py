@@ -31,7 +31,7 @@ import numpy as np
 from ..errors import FormatError, InputError, OutputExistsError
 from ..sequence import Sequence
 from ._registry import register
-from .atomic import PRINTF_DIRECTIVE, atomic_dir, printf_to_glob
+from .atomic import PRINTF_DIRECTIVE, TMP_PREFIX, TMP_SUFFIX, atomic_dir, on_commit, printf_to_glob, write_phase
 from .obj import read_obj, write_obj
 
 MESH_EXTENSIONS = (".ply", ".obj", ".vtk", ".vtu", ".off", ".stl")
@@ -239,13 +239,47 @@ def _write_frames(directory: str, base: str, seq: Sequence) -> list:
     return names
 
 
+#: What each mesh format can hold: "faces" (triangles), "edges" (lines), "points" (no cells).
+CAN_HOLD = {".ply": ("faces", "edges", "points"), ".obj": ("faces", "edges", "points"),
+            ".vtk": ("faces", "edges", "points"), ".vtu": ("faces", "edges", "points"),
+            ".off": ("faces", "points"), ".stl": ("faces",)}
+
+
+def check_writable(pattern: str, seq: Sequence) -> None:
+    """Refuse to write less than was read: topology the format cannot hold, obstacles, weights, labels.
+
+    Raises
+    ------
+    InputError
+        Naming the output, the format and what it cannot hold.
+    """
+    ext = os.path.splitext(pattern)[1].lower()
+    if ext not in MESH_EXTENSIONS:
+        raise InputError(f"mesh sequence output {pattern} must end in one of {' '.join(MESH_EXTENSIONS)}")
+    holds = CAN_HOLD[ext]
+    has = {"faces": seq.faces is not None and len(seq.faces), "edges": seq.edges is not None and len(seq.edges)}
+    lost = [k for k, v in has.items() if v and k not in holds]
+    if not any(has.values()) and "points" not in holds:
+        lost.append("points without cells")
+    lost += [f"obstacles ({', '.join(ob.name for ob in seq.obstacles)})"] if seq.obstacles else []
+    lost += [k for k in ("weights", "components") if getattr(seq, k) is not None]
+    if lost:
+        raise InputError(f"{ext} mesh files cannot hold the {', '.join(lost)} of {seq.origin}; nothing written to "
+                         f"{pattern}; choose a format that can (.h5, .npz, .xdmf{', .ply, .vtu, .obj' if lost[0] == 'edges' else ''})")
+
+
+def output_files(path: str, n_frames: int) -> list:
+    """Every file writing `n_frames` frames to `path` creates, replaces or removes."""
+    pattern = output_pattern(path)
+    new = [pattern % s for s in range(n_frames)]
+    return new + sorted(set(_from_pattern_quiet(pattern)) - set(new))
+
+
 def write_meshseq(path: str, seq: Sequence, overwrite: bool = False) -> None:
     pattern = output_pattern(path)
     d, base = os.path.split(pattern)
     d = d or "."
-    ext = os.path.splitext(base)[1].lower()
-    if ext not in MESH_EXTENSIONS:
-        raise InputError(f"mesh sequence output {pattern} must end in one of {' '.join(MESH_EXTENSIONS)}")
+    check_writable(pattern, seq)
     if not os.path.isdir(d):  # a fresh directory: swap in the whole tree at once
         with atomic_dir(d) as tmp:
             _write_frames(tmp, base, seq)
@@ -253,19 +287,26 @@ def write_meshseq(path: str, seq: Sequence, overwrite: bool = False) -> None:
     old = glob.glob(printf_to_glob(pattern))
     if old and not overwrite:
         raise OutputExistsError(f"output {pattern} exists ({len(old)} files); pass --overwrite (overwrite=True) to replace it")
-    try:
-        tmp = tempfile.mkdtemp(prefix=f".{base.replace('%', '')}.tmp-", dir=d)
-    except OSError as exc:
-        raise InputError(f"cannot create output {pattern}: {exc.strerror or exc}") from None
-    try:
-        names = _write_frames(tmp, base, seq)
-        for name in names:
-            os.replace(os.path.join(tmp, name), os.path.join(d, name))
-        stale = set(_from_pattern_quiet(pattern)) - {os.path.join(d, n) for n in names}
-        for p in stale:  # frames of a longer earlier sequence would be read back as ours
-            os.unlink(p)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+    with write_phase():
+        try:
+            tmp = tempfile.mkdtemp(prefix=TMP_PREFIX, suffix=TMP_SUFFIX, dir=d)
+        except OSError as exc:
+            raise InputError(f"cannot create output {pattern}: {exc.strerror or exc}") from None
+        names = []
+
+        def commit():
+            if not overwrite and glob.glob(printf_to_glob(pattern)):
+                raise OutputExistsError(f"output {pattern} exists; pass --overwrite (overwrite=True) to replace it")
+            for name in names:
+                os.replace(os.path.join(tmp, name), os.path.join(d, name))
+            stale = set(_from_pattern_quiet(pattern)) - {os.path.join(d, n) for n in names}
+            for p in stale:  # frames of a longer earlier sequence would be read back as ours
+                os.unlink(p)
+            shutil.rmtree(tmp, ignore_errors=True)
+            return pattern
+
+        on_commit(commit, lambda: shutil.rmtree(tmp, ignore_errors=True))
+        names += _write_frames(tmp, base, seq)
 
 
 def _from_pattern_quiet(pattern: str) -> list:
@@ -284,4 +325,5 @@ def _sniff(path: str, writing: bool = False) -> bool:
     return os.path.isdir(path) or (bool(GLOB_CHARS.search(path)) and not os.path.exists(path))
 
 
-register("meshseq", MESH_EXTENSIONS, read_meshseq, write_meshseq, sniff=_sniff)
+register("meshseq", MESH_EXTENSIONS, read_meshseq, write_meshseq, sniff=_sniff,
+         input_files=frame_files, output_files=output_files)

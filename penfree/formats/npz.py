@@ -86,7 +86,9 @@ def _read(z, path) -> Sequence:
         try:
             seq.attrs = json.loads(str(z["attrs_json"]))
         except ValueError:
-            raise FormatError(f"attrs_json must be a JSON object in {path}:/attrs_json") from None
+            seq.attrs = None
+        if not isinstance(seq.attrs, dict):
+            raise FormatError(f"attrs_json must be a JSON object in {path}:/attrs_json")
     names = sorted({k.split("/")[1] for k in z.files if k.startswith("obstacles/") and k.count("/") == 2})
     for name in names:
         p = f"obstacles/{name}/"

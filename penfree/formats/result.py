@@ -36,6 +36,8 @@ from ..sequence import Sequence
 from .atomic import atomic_file
 from .hdf5 import GZIP_LEVEL, has_h5_magic, open_h5, read_attrs, read_from_h5, write_attrs, write_to_h5
 
+#: Per-step datasets that must be numeric when present (``A`` may be NaN: per-component steps).
+NUMERIC_STEPS = ("A", "b", "deformed", "certificate_margin", "margin_required", "start_gap")
 #: Top-level names a result file uses for the sequence itself; extra groups must avoid them.
 SEQUENCE_NAMES = ("positions", "edges", "faces", "weights", "components", "obstacles", "steps")
 
@@ -111,6 +113,10 @@ def _check_steps(steps: dict, T: int, N: int, where: str) -> int:
         got = np.shape(steps[key])
         if got != shape:
             raise FormatError(f"steps/{key} must be {shape}; got {got} in {where}:/steps/{key}")
+    for key in NUMERIC_STEPS:
+        if key in steps and (isinstance(steps[key], dict) or np.asarray(steps[key]).dtype.kind not in "iuf"):
+            got = "a group" if isinstance(steps[key], dict) else np.asarray(steps[key]).dtype
+            raise FormatError(f"steps/{key} must be numeric; got {got} in {where}:/steps/{key}")
     for key, value in steps.items():
         shape = np.shape(value)
         if not isinstance(value, dict) and len(shape) >= 1 and shape[0] != S:
@@ -167,6 +173,8 @@ def write_result(path, seq: Sequence, steps: dict, attrs: dict, groups: dict | N
 def _read_group(g, where, skip_deformed=False) -> dict:
     out = {}
     for key, obj in g.items():
+        if obj is None:
+            raise FormatError(f"{key} is a link to nothing in {where}:{g.name}/{key}")
         if isinstance(obj, h5py.Group):
             out[key] = _read_group(obj, where)
         elif skip_deformed and key == "deformed":
@@ -209,7 +217,7 @@ def read_result(path) -> DeformResult:
         steps = _read_group(g, where, skip_deformed=True)
         if "deformed" in g:
             steps["deformed"] = _read_deformed(g["deformed"], where)
-        attrs = read_attrs(f)
+        attrs = read_attrs(f, where)
         groups = {k: _read_group(obj, where) for k, obj in f.items()
                   if isinstance(obj, h5py.Group) and k not in SEQUENCE_NAMES}
     _check_steps(steps, seq.n_frames, seq.n_vertices, where)

@@ -248,6 +248,8 @@ def _read_xdmf(path: str) -> Sequence:
         raise FormatError(f"{path} has no Temporal grid collection; expected one grid per frame")
     info_el = domain.find("Information[@Name='penfree']")
     info = json.loads(info_el.get("Value")) if info_el is not None else {}
+    if not isinstance(info, dict) or not isinstance(info.get("attrs") or {}, dict):
+        raise FormatError(f"the penfree Information element must hold a JSON object with an object 'attrs' in {path}")
     with ExitStack() as stack:
         items = _Items(path, stack)
         positions, edges, faces, grids = _read_collection(main, items, path, "the main collection")
@@ -290,4 +292,4 @@ def _read_meshio_series(path: str) -> Sequence:
                     edges=np.concatenate(edges) if edges else None, origin=path)
 
 
-register("xdmf", (".xdmf", ".xmf"), read_xdmf, write_xdmf, outputs=_outputs)
+register("xdmf", (".xdmf", ".xmf"), read_xdmf, write_xdmf, outputs=_outputs, input_files=_outputs)

@@ -71,7 +71,7 @@ from ..core.pipeline.ladder import model_ladder
 from ..core.trust.stats import R_HIST_EDGES, STARTS, TARGETS, compute_stats, stats_keys
 from ..core.trust.summary import summarize
 from ..errors import InputError
-from ..formats.atomic import atomic_dir
+from ..formats.atomic import atomic_dir, check_output_dir
 
 REPORT_SCHEMA = 1
 #: Rows of the worst-steps table.
@@ -79,15 +79,55 @@ WORST_STEPS = 10
 PROJECTED_FORMULA = "T' = T_frame ((1 - f) + f K_deformed / K_baseline) + t_fit, speedup = T_frame / T'"
 
 
-def certificate_summary(steps) -> dict:
+def recheck_certificates(steps, groups=None) -> np.ndarray:
+    """Re-run the one certification gate on every stored map: (S,) bool, never trusting stored claims.
+
+    Step k is certified when ``certify_map(steps/A[k], m)`` holds with m its
+    ``margin_required`` (0 where the file has none; m >= 1 means no margin was
+    possible and only the identity is accepted, as in verify). A per-component
+    step (``steps/A`` all NaN) needs every map ``component_maps/A[k]`` certified.
+    A NaN, infinite or negative margin, a partly NaN map or missing component maps
+    count as not certified.
+    """
+    from ..core.fit.certificate import certify_map
+
+    A = np.asarray(steps["A"], dtype=np.float64)
+    S = A.shape[0]
+    req = np.asarray(steps.get("margin_required", np.zeros(S)), dtype=np.float64).reshape(-1)
+    comp = (groups or {}).get("component_maps")
+    comp_A = np.asarray(comp["A"], dtype=np.float64) if isinstance(comp, dict) and "A" in comp else None
+    if comp_A is not None and (comp_A.ndim != 4 or comp_A.shape[0] != S or comp_A.shape[2:] != (3, 3)):
+        comp_A = None
+    ok = np.zeros(S, dtype=bool)
+    for k in range(S):
+        m = req[k] if req.size == S else np.nan
+        if not np.isfinite(m) or m < 0:
+            continue
+        if np.isfinite(A[k]).all():
+            maps = [A[k]]
+        elif np.isnan(A[k]).all() and comp_A is not None and np.isfinite(comp_A[k]).all() and len(comp_A[k]):
+            maps = list(comp_A[k])
+        else:
+            continue
+        if m >= 1.0:
+            ok[k] = all(np.array_equal(M, np.eye(3)) for M in maps)
+        else:
+            ok[k] = all(certify_map(M, m) for M in maps)
+    return ok
+
+
+def certificate_summary(steps, rechecked=None) -> dict:
     """Min margin, all certified yes/no, models and projections used, from ``steps/``.
 
     A step counts as certified when its ``certificate_margin`` is finite and at least
-    its ``margin_required`` (0 where the file has none).
+    its ``margin_required`` (0 where the file has none) and, when `rechecked` (from
+    `recheck_certificates`) is given, its map passes the certificate again.
     """
     cm = np.asarray(steps.get("certificate_margin", []), dtype=np.float64)
     req = np.asarray(steps.get("margin_required", np.zeros_like(cm)), dtype=np.float64)
     ok = np.isfinite(cm) & (cm >= np.where(np.isfinite(req), req, 0.0))
+    if rechecked is not None:
+        ok = ok & rechecked if ok.shape == rechecked.shape else np.asarray(rechecked, dtype=bool)
     frames = np.asarray(steps.get("frame", np.arange(cm.size)))
 
     def counts(key):
@@ -96,7 +136,7 @@ def certificate_summary(steps) -> dict:
 
     return {
         "min_margin": float(np.nanmin(cm)) if cm.size and not np.all(np.isnan(cm)) else math.nan,
-        "all_certified": bool(ok.all()) if cm.size else False,
+        "all_certified": bool(ok.all()) if ok.size else False,
         "n_uncertified": int(np.count_nonzero(~ok)),
         "uncertified_frames": frames[~ok].tolist(),
         "models": counts("model"),
@@ -144,7 +184,7 @@ def build_file_report(path, result, stats, *, ladder=None, cd_share=DEFAULT_CD_S
         "deform_options": dict(result.attrs),
         "stats_source": stats_source,
         "summary": summarize(stats, steps, cd_share=cd_share, frame_ms=frame_ms),
-        "certificate": certificate_summary(steps),
+        "certificate": certificate_summary(steps, recheck_certificates(steps, result.groups)),
         "worst_steps": worst_steps(stats),
         "steps": per_step,
         "r_hist": hist,
@@ -188,6 +228,9 @@ def select_steps(result, frames=None):
     groups = dict(result.groups)
     if isinstance(groups.get("stats"), dict):
         groups["stats"] = sub(groups["stats"])
+    if isinstance(groups.get("component_maps"), dict):  # per-step maps; labels are per vertex
+        groups["component_maps"] = {k: (sub({k: v})[k] if k != "labels" else v)
+                                    for k, v in groups["component_maps"].items()}
     return dataclasses.replace(result, steps=sub(result.steps), groups=groups)
 
 
@@ -249,7 +292,47 @@ def load_report_json(path) -> dict:
         raise InputError(f"cannot read baseline report {path}: {exc}") from None
     if not isinstance(data, dict) or data.get("penfree_report") != REPORT_SCHEMA or "files" not in data:
         raise InputError(f"{path} is not a penfree report.json (expected penfree_report = {REPORT_SCHEMA})")
+    files = data["files"]
+    if not isinstance(files, list) or not all(isinstance(f, dict) for f in files):
+        raise InputError(f"{path}: files must be a list of objects in a penfree report.json")
+    for k, f in enumerate(files):
+        if not isinstance(f.get("name", ""), str) or not isinstance(f.get("summary", {}), dict):
+            raise InputError(f"{path}: files[{k}] needs a string name and an object summary")
+        for dotted, _ in REGRESSION_FIGURES:
+            d = f.get("summary", {})
+            for part in dotted.split("."):
+                d = d.get(part) if isinstance(d, dict) else None
+            if d is not None and (isinstance(d, bool) or not isinstance(d, (int, float))):
+                raise InputError(f"{path}: files[{k}].summary.{dotted} must be a number or null; got {d!r}")
     return data
+
+
+def report_names(outdir):
+    """``name -> bool``: True for the entries of an existing report directory that penfree wrote.
+
+    Those are ``report.md``, ``report.json`` and the plots that report.json lists; a
+    directory without a penfree report.json owns nothing.
+    """
+    try:
+        with open(os.path.join(os.fspath(outdir), "report.json"), encoding="utf-8") as fh:
+            doc = json.load(fh)
+        plots = doc.get("plots", {}).get("files", []) if doc.get("penfree_report") == REPORT_SCHEMA else None
+    except (OSError, ValueError, AttributeError):
+        plots = None
+    if not isinstance(plots, list):
+        return lambda name: False
+    owned = {"report.md", "report.json"} | {p for p in plots if isinstance(p, str) and p.endswith(".png")}
+    return owned.__contains__
+
+
+def check_report_dir(outdir, overwrite=False, inputs=()) -> None:
+    """Refuse a report directory that holds an input, the working directory, or files penfree did not write.
+
+    Raises
+    ------
+    InputError, OutputExistsError
+    """
+    check_output_dir(outdir, overwrite, inputs=inputs, owned=report_names(outdir))
 
 
 def write_report(outdir, reports, overwrite=False, *, options=None, checks=None, plots=True) -> dict:
@@ -288,6 +371,7 @@ def write_report(outdir, reports, overwrite=False, *, options=None, checks=None,
         "all_checks_passed": all(c["passed"] for c in checks),
         "files": list(reports),
     }
+    check_report_dir(outdir, overwrite, inputs=[r["file"] for r in reports])
     with atomic_dir(outdir, overwrite) as tmp:
         if plots:
             doc["plots"] = write_plots(tmp, reports)

@@ -4,9 +4,7 @@ import os
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from penfree.cli import main
 from penfree.formats import read_sequence, write_sequence
 from penfree.sequence import Sequence
 
@@ -15,10 +13,6 @@ def _seq(dtype=np.float32):
     rng = np.random.default_rng(23)
     return Sequence(positions=rng.random((3, 5, 3)).astype(dtype), faces=np.array([[0, 1, 2], [2, 3, 4]]),
                     edges=np.array([[0, 4]]), thickness=0.05, dt=0.02, source="conv").validate()
-
-
-def _run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 def _snapshot(d):
@@ -41,13 +35,13 @@ OUTPUTS = {
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64], ids=["float32", "float64"])
 @pytest.mark.parametrize("target", list(OUTPUTS))
-def test_convert_and_back(tmp_path, target, dtype):
+def test_convert_and_back(cli, tmp_path, target, dtype):
     src = tmp_path / "in.h5"
     seq = _seq(dtype)
     write_sequence(src, seq)
     before = _snapshot(tmp_path)
     out, read_as = OUTPUTS[target]
-    r = _run("convert", src, tmp_path / out)
+    r = cli("convert", src, tmp_path / out)
     assert r.exit_code == 0, r.output
     assert "wrote" in r.stdout and "3 frames, 5 vertices" in r.stdout
     assert {k: v for k, v in _snapshot(tmp_path).items() if k in before} == before  # input untouched
@@ -57,57 +51,57 @@ def test_convert_and_back(tmp_path, target, dtype):
     np.testing.assert_array_equal(back.faces, seq.faces)
     np.testing.assert_array_equal(back.edges, seq.edges)
     # and back to HDF5
-    r = _run("convert", tmp_path / read_as, tmp_path / "back.h5")
+    r = cli("convert", tmp_path / read_as, tmp_path / "back.h5")
     assert r.exit_code == 0, r.output
     np.testing.assert_array_equal(read_sequence(tmp_path / "back.h5").positions, seq.positions)
-    assert not [n for n in os.listdir(tmp_path) if ".tmp-" in n]
+    assert not [n for n in os.listdir(tmp_path) if n.startswith(".pf")]
 
 
-def test_format_options(tmp_path):
+def test_format_options(cli, tmp_path):
     src = tmp_path / "in.h5"
     write_sequence(src, _seq())
     (tmp_path / "in.h5").rename(tmp_path / "in.bin")
-    r = _run("convert", tmp_path / "in.bin", tmp_path / "meshes", "--from-format", "hdf5", "--format", "meshseq")
+    r = cli("convert", tmp_path / "in.bin", tmp_path / "meshes", "--from-format", "hdf5", "--format", "meshseq")
     assert r.exit_code == 0, r.output
     assert sorted(os.listdir(tmp_path / "meshes")) == ["frame_0000.ply", "frame_0001.ply", "frame_0002.ply"]
-    r = _run("convert", tmp_path / "in.bin", tmp_path / "x.dat")
+    r = cli("convert", tmp_path / "in.bin", tmp_path / "x.dat")
     assert r.exit_code == 2 and "cannot tell the format of" in r.stderr and "x.dat" in r.stderr
 
 
-def test_existing_output_needs_overwrite(tmp_path):
+def test_existing_output_needs_overwrite(cli, tmp_path):
     src, dst = tmp_path / "in.h5", tmp_path / "out.npz"
     write_sequence(src, _seq())
     dst.write_bytes(b"precious")
-    r = _run("convert", src, dst)
+    r = cli("convert", src, dst)
     assert r.exit_code == 2 and "exists" in r.stderr and "--overwrite" in r.stderr
     assert dst.read_bytes() == b"precious"
-    r = _run("convert", src, dst, "--overwrite")
+    r = cli("convert", src, dst, "--overwrite")
     assert r.exit_code == 0, r.output
     assert read_sequence(dst).n_frames == 3
 
 
-def test_existing_heavy_data_counts_as_output(tmp_path):
+def test_existing_heavy_data_counts_as_output(cli, tmp_path):
     src = tmp_path / "in.h5"
     write_sequence(src, _seq())
     (tmp_path / "out.xdmf.h5").write_bytes(b"precious")
-    r = _run("convert", src, tmp_path / "out.xdmf")
+    r = cli("convert", src, tmp_path / "out.xdmf")
     assert r.exit_code == 2 and "out.xdmf.h5 exists" in r.stderr
     assert sorted(os.listdir(tmp_path)) == ["in.h5", "out.xdmf.h5"]
 
 
 @pytest.mark.parametrize("out", ["in.h5", "./in.h5", "in.xdmf.h5"], ids=["same", "same-spelled-differently", "xdmf-heavy-data"])
-def test_output_may_not_be_an_input(tmp_path, out):
+def test_output_may_not_be_an_input(cli, tmp_path, out):
     src = tmp_path / "in.h5"
     write_sequence(src, _seq())
     write_sequence(tmp_path / "in.xdmf", _seq())
     inp = tmp_path / ("in.xdmf" if out == "in.xdmf.h5" else "in.h5")
     before = _snapshot(tmp_path)
-    r = _run("convert", inp, str(tmp_path / out), "--overwrite")
+    r = cli("convert", inp, str(tmp_path / out), "--overwrite")
     assert r.exit_code == 2 and "is also an input" in r.stderr
     assert _snapshot(tmp_path) == before
 
 
-def test_failure_midway_leaves_no_file(tmp_path, monkeypatch):
+def test_failure_midway_leaves_no_file(cli, tmp_path, monkeypatch):
     import penfree.formats.hdf5 as hdf5
 
     src = tmp_path / "in.npz"
@@ -119,19 +113,19 @@ def test_failure_midway_leaves_no_file(tmp_path, monkeypatch):
         raise KeyboardInterrupt  # Ctrl-C after the positions were written
 
     monkeypatch.setattr(hdf5, "write_positions", boom)
-    r = _run("convert", src, tmp_path / "out.h5")
+    r = cli("convert", src, tmp_path / "out.h5")
     assert r.exit_code == 130 and "no output written" in r.stderr
     assert sorted(os.listdir(tmp_path)) == ["in.npz"]
 
 
-def test_deformed_states_export(tmp_path):
+def test_deformed_states_export(cli, tmp_path):
     # A deform result's deformed states become a sequence (one frame per step) that
     # ParaView can animate; a raw sequence is refused with exit 2 and nothing written.
     src = tmp_path / "in.h5"
     write_sequence(src, _seq(np.float64))
     res = tmp_path / "res.h5"
-    assert _run("deform", src, "-o", res).exit_code == 0
-    r = _run("convert", res, tmp_path / "def.xdmf", "--deformed")
+    assert cli("deform", src, "-o", res).exit_code == 0
+    r = cli("convert", res, tmp_path / "def.xdmf", "--deformed")
     assert r.exit_code == 0, r.output
     from penfree.formats.result import read_result
 
@@ -139,6 +133,6 @@ def test_deformed_states_export(tmp_path):
     back = read_sequence(tmp_path / "def.xdmf")
     np.testing.assert_array_equal(back.positions, steps["deformed"])
     np.testing.assert_array_equal(back.faces, _seq().faces)
-    bad = _run("convert", src, tmp_path / "x.xdmf", "--deformed")
+    bad = cli("convert", src, tmp_path / "x.xdmf", "--deformed")
     assert bad.exit_code == 2 and not (tmp_path / "x.xdmf").exists()
     assert "in.h5" in bad.output

@@ -6,17 +6,11 @@ import os
 import h5py
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from penfree.cli import main
 from penfree.core.fit.certificate import certify
 from penfree.formats import write_sequence
 from penfree.formats.result import read_result
 from penfree.sequence import Sequence
-
-
-def _run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
 
 
 def _cloth(T=6, n=6, dtype=np.float64, offset=0.0):
@@ -38,10 +32,10 @@ def _cloth(T=6, n=6, dtype=np.float64, offset=0.0):
 
 
 @pytest.mark.parametrize("model", ["translation", "rigid", "similarity", "affine", "auto"])
-def test_every_written_map_is_certified(tmp_path, model):
+def test_every_written_map_is_certified(cli, tmp_path, model):
     src, out = tmp_path / "in.h5", tmp_path / "out.h5"
     write_sequence(src, _cloth())
-    r = _run("deform", src, "-o", out, "--model", model, "--json")
+    r = cli("deform", src, "-o", out, "--model", model, "--json")
     assert r.exit_code == 0, r.output
     summary = json.loads(r.stdout)
     assert summary["steps"] == 5 and summary["all_certified"]
@@ -56,11 +50,11 @@ def test_every_written_map_is_certified(tmp_path, model):
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64], ids=["float32", "float64"])
-def test_dtype_kept_and_far_from_origin(tmp_path, dtype):
+def test_dtype_kept_and_far_from_origin(cli, tmp_path, dtype):
     src, out = tmp_path / "in.h5", tmp_path / "out.h5"
     seq = _cloth(dtype=dtype, offset=0.0 if dtype == np.float32 else 1e6)
     write_sequence(src, seq)
-    assert _run("deform", src, "-o", out, "--model", "affine").exit_code == 0
+    assert cli("deform", src, "-o", out, "--model", "affine").exit_code == 0
     res = read_result(out)
     assert res.steps["deformed"].dtype == dtype
     # far from the origin the centred fit loses no digits: the deformed state is as
@@ -68,58 +62,58 @@ def test_dtype_kept_and_far_from_origin(tmp_path, dtype):
     if dtype == np.float64:
         near = tmp_path / "near.h5"
         write_sequence(near, _cloth())
-        assert _run("deform", near, "-o", tmp_path / "n.h5", "--model", "affine").exit_code == 0
+        assert cli("deform", near, "-o", tmp_path / "n.h5", "--model", "affine").exit_code == 0
         np.testing.assert_allclose(res.steps["residual_next_rms"], read_result(tmp_path / "n.h5").steps["residual_next_rms"],
                                    rtol=1e-6, atol=0)
 
 
-def test_two_frames_single_vertex_and_zero_motion(tmp_path):
+def test_two_frames_single_vertex_and_zero_motion(cli, tmp_path):
     one = Sequence(positions=np.array([[[0.0, 0, 0]], [[0.1, 0, 0]]])).validate()
     write_sequence(tmp_path / "one.h5", one)
-    assert _run("deform", tmp_path / "one.h5", "-o", tmp_path / "o1.h5").exit_code == 0
+    assert cli("deform", tmp_path / "one.h5", "-o", tmp_path / "o1.h5").exit_code == 0
     res = read_result(tmp_path / "o1.h5")
     np.testing.assert_allclose(res.steps["deformed"][0], [[0.2, 0, 0]], rtol=0, atol=1e-15)
     still = Sequence(positions=np.repeat(_cloth().positions[:1], 3, axis=0), faces=_cloth().faces).validate()
     write_sequence(tmp_path / "still.h5", still)
-    assert _run("deform", tmp_path / "still.h5", "-o", tmp_path / "o2.h5").exit_code == 0
+    assert cli("deform", tmp_path / "still.h5", "-o", tmp_path / "o2.h5").exit_code == 0
     res = read_result(tmp_path / "o2.h5")
     np.testing.assert_array_equal(res.steps["deformed"][0], still.positions[1])
 
 
-def test_frames_weights_and_per_vertex(tmp_path):
+def test_frames_weights_and_per_vertex(cli, tmp_path):
     src, out = tmp_path / "in.h5", tmp_path / "out.h5"
     write_sequence(src, _cloth(T=8))
     with h5py.File(src, "a") as f:
         f["masses"] = np.linspace(1.0, 2.0, 36)
-    r = _run("deform", src, "-o", out, "--frames", "3:6", "--weights", "masses", "--per-vertex", "--model", "affine")
+    r = cli("deform", src, "-o", out, "--frames", "3:6", "--weights", "masses", "--per-vertex", "--model", "affine")
     assert r.exit_code == 0, r.output
     res = read_result(out)
     assert res.steps["frame"].tolist() == [3, 4, 5]
     assert res.steps["residual_next_per_vertex"].shape == (3, 36)
     assert res.attrs["options"]["weights"] == "masses"
-    bad = _run("deform", src, "-o", tmp_path / "x.h5", "--weights", "nope")
+    bad = cli("deform", src, "-o", tmp_path / "x.h5", "--weights", "nope")
     assert bad.exit_code == 2 and "nope" in bad.stderr and not (tmp_path / "x.h5").exists()
-    empty = _run("deform", src, "-o", tmp_path / "y.h5", "--frames", "9:")
+    empty = cli("deform", src, "-o", tmp_path / "y.h5", "--frames", "9:")
     assert empty.exit_code == 2 and not (tmp_path / "y.h5").exists()
 
 
-def test_no_silent_overwrite_and_input_untouched(tmp_path):
+def test_no_silent_overwrite_and_input_untouched(cli, tmp_path):
     src, out = tmp_path / "in.h5", tmp_path / "out.h5"
     write_sequence(src, _cloth())
     before = (open(src, "rb").read(), os.stat(src).st_mtime_ns)
     out.write_bytes(b"keep me")
-    r = _run("deform", src, "-o", out)
+    r = cli("deform", src, "-o", out)
     assert r.exit_code == 2 and out.read_bytes() == b"keep me"
-    assert _run("deform", src, "-o", src, "--overwrite").exit_code == 2  # never the input
-    assert _run("deform", src, "-o", out, "--overwrite").exit_code == 0
+    assert cli("deform", src, "-o", src, "--overwrite").exit_code == 2  # never the input
+    assert cli("deform", src, "-o", out, "--overwrite").exit_code == 0
     assert (open(src, "rb").read(), os.stat(src).st_mtime_ns) == before
     assert sorted(os.listdir(tmp_path)) == ["in.h5", "out.h5"]
 
 
-def test_stats_and_selection_groups(tmp_path):
+def test_stats_and_selection_groups(cli, tmp_path):
     src, out = tmp_path / "in.h5", tmp_path / "out.h5"
     write_sequence(src, _cloth())
-    assert _run("deform", src, "-o", out, "--stats").exit_code == 0  # default model: auto
+    assert cli("deform", src, "-o", out, "--stats").exit_code == 0  # default model: auto
     res = read_result(out)
     sel = res.groups["selection"]
     assert sel["candidates"][0] == "none" and sel["predicted_k_1pct"].shape[0] == 5
@@ -128,7 +122,7 @@ def test_stats_and_selection_groups(tmp_path):
     assert "hit_rate_next_deformed" in res.groups["stats"]
 
 
-def test_per_component_output_verifies(tmp_path):
+def test_per_component_output_verifies(cli, tmp_path):
     # Two sheets moving differently: each gets its own certified map, and the result
     # passes `penfree verify` (full CCD between components).
     a, b = _cloth(), _cloth()
@@ -138,12 +132,12 @@ def test_per_component_output_verifies(tmp_path):
     seq = Sequence(positions=np.concatenate([a.positions, pos_b], axis=1), faces=F).validate()
     src, out = tmp_path / "in.h5", tmp_path / "out.h5"
     write_sequence(src, seq)
-    assert _run("deform", src, "-o", out, "--model", "per-component").exit_code == 0
+    assert cli("deform", src, "-o", out, "--model", "per-component").exit_code == 0
     res = read_result(out)
     comp = res.groups["component_maps"]
     assert comp["labels"].tolist() == [0] * 36 + [1] * 36
     for k in range(len(res.steps["frame"])):
         for A in comp["A"][k]:
             assert certify(A, 0.0)
-    v = _run("verify", out)
+    v = cli("verify", out)
     assert v.exit_code == 0, v.output

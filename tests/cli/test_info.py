@@ -6,9 +6,7 @@ import os
 import h5py
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from penfree.cli import main
 from penfree.formats import write_sequence
 from penfree.formats.result import write_result
 from penfree.sequence import Sequence
@@ -20,14 +18,10 @@ def _seq(T=4, N=5, dtype=np.float64):
                     edges=np.array([[i, i + 1] for i in range(N - 1)]), thickness=0.01, dt=0.1).validate()
 
 
-def _run(*args):
-    return CliRunner().invoke(main, [str(a) for a in args])
-
-
-def test_info_human(tmp_path):
+def test_info_human(cli, tmp_path):
     p = tmp_path / "rods.h5"
     write_sequence(p, _seq())
-    r = _run("info", p)
+    r = cli("info", p)
     assert r.exit_code == 0, r.output
     lines = r.stdout.splitlines()
     fields = dict(line.split(":", 1) for line in lines)
@@ -39,24 +33,24 @@ def test_info_human(tmp_path):
     assert len(starts) == 1
 
 
-def test_info_json(tmp_path):
+def test_info_json(cli, tmp_path):
     p = tmp_path / "rods.npz"
     write_sequence(p, _seq(dtype=np.float32))
-    r = _run("info", p, "--json")
+    r = cli("info", p, "--json")
     assert r.exit_code == 0, r.output
     d = json.loads(r.stdout)
     assert (d["frames"], d["vertices"], d["n_edges"], d["dtype"], d["kind"]) == (4, 5, 4, "float32", "segments")
     assert len(d["motion"]["per_step_max"]) == 3 and d["thickness"] == pytest.approx(0.01)
 
 
-def test_info_mesh_pattern(tmp_path):
+def test_info_mesh_pattern(cli, tmp_path):
     write_sequence(str(tmp_path / "A%08d.obj"), _seq())
-    r = _run("info", tmp_path / "A%08d.obj", "--json")
+    r = cli("info", tmp_path / "A%08d.obj", "--json")
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout)["frames"] == 4
 
 
-def test_info_result_file(tmp_path):
+def test_info_result_file(cli, tmp_path):
     seq = _seq()
     S = 3
     steps = {"frame": np.arange(1, 4), "A": np.tile(np.eye(3), (S, 1, 1)), "b": np.zeros((S, 3)),
@@ -64,11 +58,11 @@ def test_info_result_file(tmp_path):
              "projection": np.array(["none", "sym", "none"]), "certificate_margin": np.array([0.9, 0.4, 1.0])}
     p = tmp_path / "deformed.h5"
     write_result(p, seq, steps, {"input": "rods.h5"})
-    r = _run("info", p)
+    r = cli("info", p)
     assert r.exit_code == 0, r.output
     assert "steps:" in r.stdout and "affine x2, rigid x1" in r.stdout and "none x2, sym x1" in r.stdout
     assert "min certificate margin: 0.4" in r.stdout
-    d = json.loads(_run("info", p, "--json").stdout)
+    d = json.loads(cli("info", p, "--json").stdout)
     assert d["result"]["min_certificate_margin"] == 0.4 and d["result"]["steps"] == 3
 
 
@@ -114,14 +108,14 @@ BAD = {
 
 @pytest.mark.parametrize("command", ["info", "convert", "deform", "verify"])
 @pytest.mark.parametrize("case", list(BAD))
-def test_bad_input_exit_2(tmp_path, case, command):
+def test_bad_input_exit_2(cli, tmp_path, case, command):
     build, expect = BAD[case]
     bad = str(tmp_path / "bad.h5")
     build(bad)
     before = (open(bad, "rb").read(), os.stat(bad).st_mtime_ns)
     out = tmp_path / "out.h5"
-    r = {"info": lambda: _run("info", bad), "convert": lambda: _run("convert", bad, out),
-         "deform": lambda: _run("deform", bad, "-o", out), "verify": lambda: _run("verify", bad)}[command]()
+    r = {"info": lambda: cli("info", bad), "convert": lambda: cli("convert", bad, out),
+         "deform": lambda: cli("deform", bad, "-o", out), "verify": lambda: cli("verify", bad)}[command]()
     assert r.exit_code == 2, r.output
     err = r.stderr.strip()
     assert err.startswith("penfree: error: ") and "\n" not in err

@@ -1,13 +1,13 @@
 """``penfree report``: files written, exit codes of the CI checks, unusable input."""
 
+import os
 import json
 import math
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from penfree.cli import main
+from penfree.constants import DEFAULT_GAMMA
 from penfree.sequence import Sequence
 
 
@@ -44,13 +44,9 @@ def result(tmp_path):
     return _result_file(tmp_path / "res.h5")
 
 
-def run(*args):
-    return CliRunner().invoke(main, ["report", *map(str, args)])
-
-
-def test_report_written(result, tmp_path):
+def test_report_written(cli, result, tmp_path):
     out = tmp_path / "rep"
-    r = run(result, "-o", out, "--no-ladder", "--frame-ms", "16", "--cd-share", "0.4")
+    r = cli("report", result, "-o", out, "--no-ladder", "--frame-ms", "16", "--cd-share", "0.4")
     assert r.exit_code == 0, r.output
     doc = json.loads((out / "report.json").read_text())
     assert doc["options"]["frame_ms"] == 16.0 and doc["options"]["cd_share"] == 0.4
@@ -61,16 +57,16 @@ def test_report_written(result, tmp_path):
     assert "projected speedup" in r.output
 
 
-def test_json_on_stdout_and_frames(result, tmp_path):
-    r = run(result, "-o", tmp_path / "rep", "--no-ladder", "--no-plots", "--frames", "2:4", "--json")
+def test_json_on_stdout_and_frames(cli, result, tmp_path):
+    r = cli("report", result, "-o", tmp_path / "rep", "--no-ladder", "--no-plots", "--frames", "2:4", "--json")
     assert r.exit_code == 0, r.output
     doc = json.loads(r.output)
     assert doc["files"][0]["steps"]["frame"] == [2, 3]
     assert doc["plots"]["status"] == "disabled"
 
 
-def test_ladder_and_replay(result, tmp_path):
-    r = run(result, "-o", tmp_path / "rep", "--replay", "--no-plots", "--json")
+def test_ladder_and_replay(cli, result, tmp_path):
+    r = cli("report", result, "-o", tmp_path / "rep", "--replay", "--no-plots", "--json")
     assert r.exit_code == 0, r.output
     f = json.loads(r.output)["files"][0]
     assert [row["model"] for row in f["ladder"]["rows"]] == ["baseline", "translation", "rigid", "similarity",
@@ -89,9 +85,9 @@ def test_ladder_and_replay(result, tmp_path):
         pytest.param(["--fail-if-uncertified"], 0, id="certified"),
     ],
 )
-def test_threshold_exit_codes(result, tmp_path, opts, code):
+def test_threshold_exit_codes(cli, result, tmp_path, opts, code):
     out = tmp_path / "rep"
-    r = run(result, "-o", out, "--no-ladder", "--no-plots", *opts)
+    r = cli("report", result, "-o", out, "--no-ladder", "--no-plots", *opts)
     assert r.exit_code == code, r.output
     assert (out / "report.json").exists()  # written whether the checks pass or not
     doc = json.loads((out / "report.json").read_text())
@@ -100,25 +96,25 @@ def test_threshold_exit_codes(result, tmp_path, opts, code):
         assert "check(s) failed" in r.output
 
 
-def test_uncertified_fails(tmp_path):
+def test_uncertified_fails(cli, tmp_path):
     f = _result_file(tmp_path / "u.h5", uncertified=True)
-    r = run(f, "-o", tmp_path / "rep", "--no-ladder", "--no-plots", "--fail-if-uncertified")
+    r = cli("report", f, "-o", tmp_path / "rep", "--no-ladder", "--no-plots", "--fail-if-uncertified")
     assert r.exit_code == 1 and "certified" in r.output and "frames [3]" in r.output
 
 
-def test_regression_against_baseline(result, tmp_path):
-    r = run(result, "-o", tmp_path / "base", "--no-ladder", "--no-plots")
+def test_regression_against_baseline(cli, result, tmp_path):
+    r = cli("report", result, "-o", tmp_path / "base", "--no-ladder", "--no-plots")
     assert r.exit_code == 0, r.output
     base = tmp_path / "base" / "report.json"
     # the same file against itself: no regression (fit time comes from the file)
-    r = run(result, "-o", tmp_path / "same", "--no-ladder", "--no-plots", "--baseline", base, "--max-regression", "0")
+    r = cli("report", result, "-o", tmp_path / "same", "--no-ladder", "--no-plots", "--baseline", base, "--max-regression", "0")
     assert r.exit_code == 0, r.output
     # a baseline that needed half the CD passes: the current file regressed
     doc = json.loads(base.read_text())
     doc["files"][0]["summary"]["deformed"]["k_1pct_next"] /= 2
     better = tmp_path / "better.json"
     better.write_text(json.dumps(doc))
-    r = run(result, "-o", tmp_path / "new", "--no-ladder", "--no-plots", "--baseline", better,
+    r = cli("report", result, "-o", tmp_path / "new", "--no-ladder", "--no-plots", "--baseline", better,
             "--max-regression", "5")
     assert r.exit_code == 1, r.output
     assert "regression:deformed.k_1pct_next" in r.output
@@ -137,7 +133,7 @@ def test_regression_against_baseline(result, tmp_path):
         pytest.param("ok", ["--frames", "90:"], "selects none", id="empty-frames"),
     ],
 )
-def test_unusable_input_exit_2(tmp_path, make, args, match):
+def test_unusable_input_exit_2(cli, tmp_path, make, args, match):
     from penfree.formats import write_sequence
 
     f = tmp_path / "in.h5"
@@ -148,30 +144,35 @@ def test_unusable_input_exit_2(tmp_path, make, args, match):
     elif make == "ok":
         _result_file(f)
     out = tmp_path / "rep"
-    r = run(f, "-o", out, "--no-ladder", *[tmp_path / a if a.endswith(".json") else a for a in args])
+    r = cli("report", f, "-o", out, "--no-ladder", *[tmp_path / a if a.endswith(".json") else a for a in args])
     assert r.exit_code == 2, r.output
     assert match in r.output and "Traceback" not in r.output
     assert len(r.output.strip().splitlines()) == 1
     assert not out.exists()
 
 
-def test_existing_output_not_replaced(result, tmp_path):
+def test_existing_output_not_replaced(cli, result, tmp_path):
     out = tmp_path / "rep"
     out.mkdir()
     (out / "keep").write_text("x")
-    r = run(result, "-o", out, "--no-ladder", "--no-plots")
+    r = cli("report", result, "-o", out, "--no-ladder", "--no-plots")
     assert r.exit_code == 2 and "--overwrite" in r.output
     assert (out / "keep").exists()
-    r = run(result, "-o", out, "--no-ladder", "--no-plots", "--overwrite")
-    assert r.exit_code == 0 and not (out / "keep").exists()
+    r = cli("report", result, "-o", out, "--no-ladder", "--no-plots", "--overwrite")  # --overwrite: the named output only
+    assert r.exit_code == 2 and "did not write" in r.output and (out / "keep").read_text() == "x"
+    (out / "keep").unlink()
+    assert cli("report", result, "-o", out, "--no-ladder", "--no-plots").exit_code == 2  # exists, even empty
+    assert cli("report", result, "-o", out, "--no-ladder", "--overwrite").exit_code == 0  # an empty directory
+    r = cli("report", result, "-o", out, "--no-ladder", "--overwrite")  # a report penfree wrote, plots included
+    assert r.exit_code == 0 and {"report.json", "report.md"} <= set(os.listdir(out))
 
 
-def test_click_rejects_bad_assumptions(result, tmp_path):
-    r = run(result, "-o", tmp_path / "rep", "--cd-share", "1.5")
+def test_click_rejects_bad_assumptions(cli, result, tmp_path):
+    r = cli("report", result, "-o", tmp_path / "rep", "--cd-share", "1.5")
     assert r.exit_code == 2
 
 
-def test_two_frames_no_next_frame(tmp_path):
+def test_two_frames_no_next_frame(cli, tmp_path):
     # One step and no next frame: next figures are null, projections n/a, and a
     # speedup threshold cannot be met (a check that cannot be evaluated fails).
     from penfree.formats.result import write_result
@@ -184,7 +185,7 @@ def test_two_frames_no_next_frame(tmp_path):
     f = tmp_path / "two.h5"
     write_result(f, seq, steps, {})
     out = tmp_path / "rep"
-    r = run(f, "-o", out, "--no-ladder", "--min-speedup", "0.1")
+    r = cli("report", f, "-o", out, "--no-ladder", "--min-speedup", "0.1")
     assert r.exit_code == 1, r.output
     doc = json.loads((out / "report.json").read_text())
     fr = doc["files"][0]

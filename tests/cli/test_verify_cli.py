@@ -5,10 +5,8 @@ import json
 import h5py
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 from penfree import Sequence
-from penfree.cli import main
 from penfree.formats import write_sequence
 
 
@@ -50,72 +48,68 @@ def write_h5(path, positions, edges=None, faces=None, thickness=None):
             f.attrs["thickness"] = thickness
 
 
-def run(*args):
-    return CliRunner().invoke(main, ["verify", *map(str, args)], catch_exceptions=False)
-
-
-def test_clean_cloth_sequence_passes(tmp_path):
+def test_clean_cloth_sequence_passes(cli, tmp_path):
     frames, F = cloth_frames()
     p = tmp_path / "cloth.h5"
     write_h5(p, frames, faces=F)
-    r = run(p)
+    r = cli("verify", p)
     assert r.exit_code == 0, r.output
     assert r.output.count(": OK") == 3 and "all steps safe" in r.output
 
 
-def test_vertex_pushed_through_face_fails_and_names_pair(tmp_path):
+def test_vertex_pushed_through_face_fails_and_names_pair(cli, tmp_path):
     frames, F = cloth_frames()
     frames[2, 5, 2] = frames[1, 5, 2] + 1.0  # lower-sheet vertex 5 jumps through the upper sheet
     p = tmp_path / "cloth_bad.h5"
     write_h5(p, frames, faces=F)
-    r = run(p, "--json")
+    r = cli("verify", p, "--json")
     assert r.exit_code == 1, r.output
     rep = json.loads(r.output)
     assert not rep["ok"] and rep["n_failed"] >= 1
     bad = [s for s in rep["steps"] if not s["ok"]]
     assert bad[0]["frame"] == 1
     assert any(k == "vf" and v == 5 for k, v, _, _ in bad[0]["pairs"])
-    text = run(p)
+    text = cli("verify", p)
     assert text.exit_code == 1 and "VIOLATION" in text.output and "vf 5-" in text.output
 
 
-def test_rod_through_rod_fails(tmp_path):
+def test_rod_through_rod_fails(cli, tmp_path):
     frames, E = rod_frames()
     frames[3, 5:, 2] = -1.0  # upper rod drops through the lower one in step 2 -> 3
     p = tmp_path / "rods.h5"
     write_h5(p, frames, edges=E)
-    r = run(p)
+    r = cli("verify", p)
     assert r.exit_code == 1
     assert "step     2 -> frame 3: VIOLATION" in r.output and "ee " in r.output
     assert "step     0 -> frame 1: OK" in r.output
     # the violating step alone, and the clean ones alone
-    assert run(p, "--frames", "0:3").exit_code == 0
-    assert run(p, "--frames", "2:").exit_code == 1
+    assert cli("verify", p, "--frames", "0:3").exit_code == 0
+    assert cli("verify", p, "--frames", "2:").exit_code == 1
 
 
-def test_thickness_from_file_and_option(tmp_path):
+def test_thickness_from_file_and_option(cli, tmp_path):
     frames, E = rod_frames()
     p = tmp_path / "rods_thick.h5"
     write_h5(p, frames, edges=E, thickness=1.5)  # rods are 1 apart: the start state violates
-    r = run(p, "--json", "--max-pairs", "2")
+    r = cli("verify", p, "--json", "--max-pairs", "2")
     assert r.exit_code == 1
     step = json.loads(r.output)["steps"][0]
     assert not step["start_ok"] and len(step["start_violations"]) == 2 and step["n_start_violations"] > 2
-    assert run(p, "--thickness", "0.5").exit_code == 0
+    assert cli("verify", p, "--thickness", "0.5").exit_code == 0
 
 
-def test_start_state_intersection_reported(tmp_path):
+def test_start_state_intersection_reported(cli, tmp_path):
     frames, F = cloth_frames(T=2)
     rod = np.array([[1.5, 1.6, -1.0], [1.5, 1.6, 2.0]])
     pos = np.stack([np.r_[fr, rod + [0.1 * s, 0, 0.2 * s]] for s, fr in enumerate(frames)])
     p = tmp_path / "pierced.h5"
     n = frames.shape[1]
     write_h5(p, pos, faces=F, edges=np.array([[n, n + 1]]))
-    r = run(p)
+    r = cli("verify", p)
     assert r.exit_code == 1 and "start state: 2 pair(s)" in r.output and "ef " in r.output
 
 
-def test_deform_result_verifies(tmp_path):
+def test_deform_result_verifies(cli, tmp_path):
     from penfree.core.pipeline.deform import deform_sequence
     from penfree.formats.result import write_result
 
@@ -125,7 +119,7 @@ def test_deform_result_verifies(tmp_path):
     p = tmp_path / "res.h5"
     write_result(p, seq, out.steps, {"input": "cloth"})
     for mode in ("auto", "ccd", "certificate"):
-        r = run(p, "--mode", mode, "--json")
+        r = cli("verify", p, "--mode", mode, "--json")
         assert r.exit_code == 0, (mode, r.output)
         rep = json.loads(r.output)
         assert rep["kind"] == "result" and rep["n_steps"] == 4
@@ -136,29 +130,29 @@ def test_deform_result_verifies(tmp_path):
         d = f["steps/deformed"][()]
         d[1, 5, 2] += 1.0
         f["steps/deformed"][...] = d
-    assert run(p, "--mode", "auto").exit_code == 1
-    assert run(p, "--mode", "ccd").exit_code == 1
-    assert run(p, "--mode", "certificate").exit_code == 1
+    assert cli("verify", p, "--mode", "auto").exit_code == 1
+    assert cli("verify", p, "--mode", "ccd").exit_code == 1
+    assert cli("verify", p, "--mode", "certificate").exit_code == 1
 
 
-def test_bad_input_exit_2(tmp_path):
+def test_bad_input_exit_2(cli, tmp_path):
     p = tmp_path / "broken.h5"
     p.write_bytes(b"not an hdf5 file")
-    r = CliRunner().invoke(main, ["verify", str(p)])
+    r = cli("verify", str(p))
     assert r.exit_code == 2 and "error" in r.output
     q = tmp_path / "bad_faces.h5"
     frames, F = cloth_frames(T=2)
     write_h5(q, frames, faces=F + 1000)
-    r = CliRunner().invoke(main, ["verify", str(q)])
+    r = cli("verify", str(q))
     assert r.exit_code == 2
-    r = CliRunner().invoke(main, ["verify", str(tmp_path / "missing.h5")])
+    r = cli("verify", str(tmp_path / "missing.h5"))
     assert r.exit_code == 2
 
 
 @pytest.mark.parametrize("args", [["--frames", "x"], ["--thickness", "-1"]], ids=["bad-frames", "negative-thickness"])
-def test_bad_arguments_exit_2(tmp_path, args):
+def test_bad_arguments_exit_2(cli, tmp_path, args):
     frames, E = rod_frames()
     p = tmp_path / "rods.h5"
     write_sequence(str(p), Sequence(positions=frames, edges=E).validate())
-    r = CliRunner().invoke(main, ["verify", str(p), *args])
+    r = cli("verify", str(p), *args)
     assert r.exit_code == 2

@@ -16,7 +16,7 @@ def test_atomic_file_renames_on_success(tmp_path):
     target = tmp_path / "out.bin"
     with atomic_file(target) as tmp:
         assert os.path.dirname(tmp) == str(tmp_path)
-        assert os.path.basename(tmp).startswith(".out.bin.tmp-")
+        assert os.path.basename(tmp).startswith(".pf") and len(os.path.basename(tmp)) <= 16  # short: any output name fits
         with open(tmp, "w") as fh:
             fh.write("new")
         assert not target.exists()  # nothing visible before the end
@@ -104,3 +104,43 @@ def test_uncreatable_output_is_an_input_error(tmp_path, ctx):
     with pytest.raises(InputError, match="cannot create output"):
         with ctx(tmp_path / "plain" / "out"):
             pass  # pragma: no cover
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_signal_while_writing_leaves_nothing(tmp_path, sig):
+    import signal
+
+    from penfree.errors import Interrupted
+
+    signum = getattr(signal, sig)
+    before = signal.getsignal(signum)
+    with pytest.raises(Interrupted) as info:
+        with atomic_file(tmp_path / "new" / "out.bin") as tmp:
+            os.kill(os.getpid(), signum)  # deferred: the writer finishes, nothing is renamed
+            open(tmp, "w").write("complete but interrupted")
+    assert info.value.signum == signum
+    assert _listing(tmp_path) == []  # no output, no temporary, no created parent
+    assert signal.getsignal(signum) is before  # handlers restored
+
+
+def test_new_directory_output_is_exclusive(tmp_path):
+    out = tmp_path / "rep"
+    with pytest.raises(OutputExistsError):
+        with atomic_dir(out) as tmp:
+            open(os.path.join(tmp, "mine.md"), "w").write("slower")
+            out.mkdir()  # another writer created it meanwhile
+            (out / "theirs.md").write_text("faster")
+    assert _listing(out) == ["theirs.md"] and _listing(tmp_path) == ["rep"]
+
+
+def test_writers_in_threads_do_not_share_a_write_phase(tmp_path):
+    from concurrent.futures import ThreadPoolExecutor
+
+    def write(k):
+        with atomic_file(tmp_path / f"out{k}.txt") as tmp:
+            open(tmp, "w").write(str(k))
+
+    with ThreadPoolExecutor(4) as pool:
+        list(pool.map(write, range(16)))
+    assert _listing(tmp_path) == sorted(f"out{k}.txt" for k in range(16))
+    assert all((tmp_path / f"out{k}.txt").read_text() == str(k) for k in range(16))

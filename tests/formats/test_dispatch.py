@@ -8,7 +8,7 @@ from hypothesis.extra import numpy as hnp
 
 from penfree.errors import InputError
 from penfree.formats import FORMATS, detect_format, read_sequence, register, write_sequence
-from penfree.sequence import Sequence
+from penfree.sequence import SCALE_MAX, SCALE_MIN, Sequence
 
 
 @pytest.mark.parametrize("path,writing,name", [
@@ -67,10 +67,18 @@ def test_register_a_format(tmp_path):
     data=st.data(),
 )
 def test_any_finite_values_round_trip_bit_exactly(tmp_path_factory, dtype, shape, target, data):
-    """Subnormals, huge values, -0.0: every format gives back the very same bits."""
+    """Subnormals, huge values, -0.0: every format gives back the very same bits.
+
+    Within the supported range (largest |coordinate| in [SCALE_MIN, SCALE_MAX]);
+    scenes outside it are refused (test_sequence.py).
+    """
     T, N = shape
+    bound = SCALE_MAX if dtype == np.float64 else None  # float32 never exceeds it
     pos = data.draw(hnp.arrays(dtype, (T, N, 3), elements=st.floats(
-        allow_nan=False, allow_infinity=False, width=32 if dtype == np.float32 else 64)))
+        min_value=None if bound is None else -bound, max_value=bound, allow_nan=False, allow_infinity=False,
+        width=32 if dtype == np.float32 else 64)))
+    if np.abs(pos).max() < SCALE_MIN:
+        pos[0, 0, 0] = 1.0  # subnormals stay, the scene gets a supported scale
     seq = Sequence(positions=pos, faces=np.array([[0, 1, 2]])).validate()
     d = tmp_path_factory.mktemp("rt")
     write_sequence(str(d / target), seq)

@@ -2,6 +2,7 @@
 
 import json
 import math
+import os
 import sys
 
 import numpy as np
@@ -197,8 +198,12 @@ def test_existing_output_needs_overwrite(tmp_path):
     with pytest.raises(OutputExistsError):
         write_report(out, [rep], plots=False)
     assert (out / "marker").exists()
+    with pytest.raises(InputError, match="marker.*did not write"):  # --overwrite: penfree's own files only
+        write_report(out, [rep], overwrite=True, plots=False)
+    assert (out / "marker").read_text() == "old"
+    (out / "marker").unlink()
     write_report(out, [rep], overwrite=True, plots=False)
-    assert not (out / "marker").exists() and (out / "report.json").exists()
+    assert sorted(os.listdir(out)) == ["report.json", "report.md"]
 
 
 def test_load_report_json_rejects_other_json(tmp_path):

@@ -244,6 +244,8 @@ def n_steps(path, frames=None) -> int:
         with h5py.File(path, "r") as f:
             if "steps/frame" in f:
                 fr = f["steps/frame"][()]
+                if not isinstance(fr, np.ndarray) or fr.dtype.kind not in "iu":
+                    return 0  # unusable: the reader reports it
                 sel = _selected(f["positions"].shape[0], frames)
                 return int(sum(int(s) in sel for s in fr))
             T = f["positions"].shape[0]

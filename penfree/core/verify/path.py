@@ -69,8 +69,9 @@ class VerifyResult:
         Certified lower bound of the distance between any two checked
         primitives over the whole path: the smallest of the per-pair lower
         bounds proven by the CCD (0 for violating pairs, and for pairs that
-        only the exact decision could separate); +inf when no pair was close
-        enough to be checked. When ok and thickness > 0 it is >= thickness.
+        only the exact decision could separate) and of the thickness, which
+        bounds every pair the broad phase did not pass on (so never +inf,
+        and never above the true minimum distance of any pair).
     n_candidates : int
         Pairs that went through the narrow phase along the path.
     edges : (E, 2) int64 or None
@@ -342,7 +343,8 @@ def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=
     return VerifyResult(
         ok=n_start == 0 and n_viol == 0, start_ok=n_start == 0,
         start_violations=[p[:3] for p in start_list], n_start_violations=n_start,
-        pairs=pairs, n_violations=n_viol, min_separation=path.sep,
+        # pairs the broad phase did not pass on are only known to stay beyond the thickness
+        pairs=pairs, n_violations=n_viol, min_separation=min(path.sep, thickness),
         n_candidates=path.n_candidates, edges=scene.E if len(scene.E) else None,
     )
 
