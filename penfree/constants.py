@@ -66,10 +66,16 @@ FAST_CERT_ROUNDING_C = 64.0
 #: the rounded result still passes the fast test.
 SYM_SAFETY_REL = 1e-12
 
-#: With a thickness h, the margin is h / d0 (d0 the smallest start gap). d0 is only
-#: searched within this many thicknesses: beyond it the margin h / radius (<= 0.1)
-#: is already sufficient and barely restricts per-frame motion (arccos(0.1) = 84 deg).
+#: The one margin rule (`core.gate.margin_rule`): with a thickness h > 0 every map
+#: must keep sigma_min(I + tD) above 1 / this factor, which keeps every pair that
+#: starts more than this many thicknesses apart at least h apart; the pairs closer
+#: than that (one proximity query) go through the conservative CCD. 0.1 barely
+#: restricts per-frame motion (rotations up to arccos(0.1) = 84 deg per step).
 MARGIN_GAP_RADIUS_FACTOR = 10.0
+#: The near-pair radius is MARGIN_GAP_RADIUS_FACTOR * h * (1 + this): the slack
+#: absorbs the rounding of the stored x_def (at most NEAR_SLACK_REL / 2 * h per
+#: vertex from the exact A x + b, checked per candidate).
+NEAR_SLACK_REL = 0.01
 
 # --- verification (SPEC section 6) -------------------------------------------
 #: Pairs listed per step by default (``verify --max-pairs``).

@@ -15,6 +15,8 @@ import numpy as np
 from ..constants import DEFAULT_MAX_PAIRS
 from ..errors import InputError
 from .certificate import certify, fast_margin_bound
+from .gate import deviation_bound, margin_rule
+from .obstacles import as_verify_obstacles
 from .verify import (
     VerifyResult,
     _bodies,
@@ -29,20 +31,6 @@ MODES = ("auto", "ccd", "certificate")
 #: Margins tried (largest first) when the field-of-values bound gives none:
 #: rotations beyond arccos(m) per step need a smaller m.
 _MARGIN_LADDER = (0.5, 0.25, 0.1, 0.03, 0.01)
-_U = 2.0**-53
-
-
-def _deviation_bound(x, x_def, A, b):
-    """Rigorous upper bound of max_v |x_def_v - (A x_v + b)| (exact real A x + b).
-
-    fl(A x + b) has per-component error <= gamma_4 (sum_j |A_ij x_j| + |b_i|)
-    and the subtraction adds u |x_def - y|; 8 u covers both with room.
-    """
-    y = x @ A.T + b
-    r = np.abs(x_def - y)
-    s = np.abs(x) @ np.abs(A).T + np.abs(b) + np.abs(x_def)
-    e = r + 8.0 * _U * s
-    return float(np.sqrt((e * e).sum(axis=1)).max() * (1.0 + 8.0 * _U)) if len(x) else 0.0
 
 
 def _margin(A, need_positive):
@@ -96,12 +84,12 @@ def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0
     are not moved by A: steps with obstacles always use the full CCD.
     """
     thickness = _thickness(thickness)
-    scene, _ = _bodies(x_t0, x_def, edges, faces, None)
+    scene, _, _ = _bodies(x_t0, x_def, edges, faces, None)
     A = np.asarray(A, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     if A.shape != (3, 3) or b.shape != (3,) or not (np.isfinite(A).all() and np.isfinite(b).all()):
         raise InputError(f"A must be finite (3, 3) and b finite (3,); got {A.shape} and {b.shape}")
-    delta = _deviation_bound(scene.x_t0, scene.x_t1, A, b)
+    delta = deviation_bound(scene.x_t0, scene.x_t1, A, b)
     m = _margin(A, need_positive=thickness > 0 or delta > 0)
     if m is None:
         return None
@@ -129,10 +117,13 @@ class StepReport:
     certificate: bool | None = None
     margin: float | None = None
     certificate_claimed: bool = False
+    strict: bool = False
 
     @property
     def ok(self) -> bool:
         # a certificate the file claims must hold; an unclaimed one (projection "none") is informational
+        if self.strict and self.result.n_pre_existing:
+            return False
         return self.result.ok and not (self.certificate_claimed and self.certificate is False)
 
     def to_dict(self) -> dict:
@@ -162,9 +153,15 @@ class VerifyReport:
     def n_failed(self) -> int:
         return sum(not s.ok for s in self.steps)
 
+    @property
+    def n_started_dirty(self) -> int:
+        """Steps whose start state already held intersections (pre-existing, deform results)."""
+        return sum(s.result.n_pre_existing > 0 for s in self.steps)
+
     def to_dict(self) -> dict:
         return {"file": self.origin, "kind": self.kind, "thickness": self.thickness, "mode": self.mode,
                 "ok": self.ok, "n_steps": len(self.steps), "n_failed": self.n_failed,
+                "n_started_dirty": self.n_started_dirty,
                 "steps": [s.to_dict() for s in self.steps]}
 
 
@@ -176,7 +173,7 @@ def _selected(n_frames, frames):
 
 
 def _obstacles(seq, s0, s1):
-    return [(ob.frame(s0), ob.frame(s1), ob.faces, ob.edges) for ob in seq.obstacles], [ob.name for ob in seq.obstacles]
+    return as_verify_obstacles(seq.obstacles, s0, s1)
 
 
 def verify_sequence(seq, *, thickness=None, frames=None, max_pairs=DEFAULT_MAX_PAIRS, progress=None):
@@ -216,7 +213,8 @@ def verify_sequence(seq, *, thickness=None, frames=None, max_pairs=DEFAULT_MAX_P
     return rep
 
 
-def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DEFAULT_MAX_PAIRS, progress=None):
+def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DEFAULT_MAX_PAIRS, progress=None,
+                  strict=False):
     """Verify every step of a deform result: positions[frame] -> steps/deformed, and steps/A.
 
     Parameters
@@ -228,10 +226,12 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         Steps whose frame lies in this slice.
     mode : {"auto", "ccd", "certificate"}
         ``ccd``: full CCD for every step. ``auto``: the certificate proof of
-        `verify_affine_step` where it applies (no obstacles), else full CCD.
-        ``certificate``: the certificate proof only; a step it cannot prove
-        is reported as not ok (never as safe). All three are sound.
+        `verify_affine_step` where it applies (no obstacles, clean start), else full
+        CCD. ``certificate``: the certificate proof only; a step it cannot prove is
+        reported as not ok (never as safe). All three are sound.
     progress : callable or None
+    strict : bool
+        Pre-existing intersections of a start state fail the step.
 
     Returns
     -------
@@ -239,19 +239,19 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
 
     Notes
     -----
-    The certificate reported per step is the exact ``certify(A, margin)`` with
-    the margin deform uses (thickness / d0, d0 the smallest start gap; 0 when
-    thickness is 0). A step fails when its path check fails, or when the file
-    claims a certificate (finite ``certificate_margin`` >= 0) that does not
-    hold. Obstacles are held at the step's start frame (deform moves only the
-    scene).
+    The guarantee checked is deform's (SPEC section 6): the start state is not
+    judged, the path must add no new intersecting or thickness-violating pair; pairs
+    that already touch or intersect at the start are reported as pre-existing. The
+    certificate reported per step is the exact ``certify(A, margin_rule(thickness))``
+    of every applied map. A step fails when its path check fails, or when the file
+    claims a certificate (finite ``certificate_margin`` >= 0) that does not hold.
+    Obstacles are held at the step's start frame (deform moves only the scene).
     """
-    from .pipeline import step_margin
-
     if mode not in MODES:
         raise InputError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
     seq = res.sequence
     h = _thickness(seq.thickness if thickness is None else thickness)
+    m = margin_rule(h)
     sel = _selected(seq.n_frames, frames)
     st = res.steps
     if "deformed" not in st:
@@ -264,15 +264,9 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         x = np.asarray(seq.positions[s], dtype=np.float64)
         x_def = np.asarray(st["deformed"][k], dtype=np.float64)
         A, b = np.asarray(st["A"][k], np.float64), np.asarray(st["b"][k], np.float64)
-        m, _ = step_margin(x, seq, h, None)
         per_component = not np.isfinite(A).all()
-        if per_component:
-            # Several maps (deform --model per-component): each must be certified, and
-            # only the full CCD can prove the paths between components.
-            maps = _component_maps(res, k)
-            cert = m is not None and all(certify(A_c, m) for A_c in maps)
-        else:
-            cert = certify(A, m) if m is not None else bool(np.array_equal(A, np.eye(3)))
+        maps = _component_maps(res, k) if per_component else [A]
+        cert = all(certify(A_c, m) for A_c in maps)
         r = None
         if mode != "ccd" and not seq.obstacles and not per_component:
             r = verify_affine_step(x, x_def, A, b, edges=seq.edges, faces=seq.faces, thickness=h, max_pairs=max_pairs)
@@ -281,9 +275,9 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         if r is None:
             obs, names = _obstacles(seq, s, s)
             r = verify_step(x, x_def, edges=seq.edges, faces=seq.faces, thickness=h, obstacles=obs,
-                            obstacle_names=names, max_pairs=max_pairs)
+                            obstacle_names=names, max_pairs=max_pairs, pre_existing=True)
         is_claimed = claimed is not None and bool(np.isfinite(claimed[k]) and claimed[k] >= 0)
-        rep.steps.append(StepReport(s, "deformed", r, cert, None if m is None else float(m), is_claimed))
+        rep.steps.append(StepReport(s, "deformed", r, cert, float(m), is_claimed, strict))
         if progress is not None:
             progress()
     return rep
@@ -299,7 +293,8 @@ def _component_maps(res, k):
     return list(np.unique(np.asarray(comp["A"][k], dtype=np.float64), axis=0))
 
 
-def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEFAULT_MAX_PAIRS, progress=None):
+def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEFAULT_MAX_PAIRS, progress=None,
+                strict=False):
     """Verify a deform result or a raw sequence file (any readable format).
 
     Parameters
@@ -313,6 +308,8 @@ def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEF
     max_pairs : int
     progress : callable or None
         Called once per step.
+    strict : bool
+        Deform results: pre-existing intersections of a start state fail the step.
 
     Returns
     -------
@@ -331,7 +328,7 @@ def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEF
         raise InputError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
     if is_result_file(path):
         return verify_result(read_result(path), thickness=thickness, frames=frames, mode=mode,
-                             max_pairs=max_pairs, progress=progress)
+                             max_pairs=max_pairs, progress=progress, strict=strict)
     seq = read_sequence(path)
     return verify_sequence(seq, thickness=thickness, frames=frames, max_pairs=max_pairs, progress=progress)
 
