@@ -35,7 +35,12 @@ json_option = click.option("--json", "as_json", is_flag=True, help="Machine-read
 overwrite_option = click.option("--overwrite", is_flag=True, help="Replace an existing output.")
 thickness_option = click.option(
     "--thickness", type=click.FloatRange(min=0.0), default=None,
-    help="Contact distance (default: the file's thickness attribute, else 0).",
+    help="Hard minimum separation guaranteed / checked (default: the file's thickness attribute, else 0).",
+)
+contact_radius_option = click.option(
+    "--contact-radius", "contact_radius", type=click.FloatRange(min=0.0), default=None,
+    help="The simulator's contact distance; sizes the trust-region query radius only, never a separation "
+         "(default: the file's contact_radius attribute, else 0).",
 )
 
 

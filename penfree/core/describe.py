@@ -71,7 +71,7 @@ def describe(seq: Sequence) -> dict:
         ``edge_length_median`` (frame 0; faces' edges for triangles; None for points),
         ``motion`` (``max`` and ``rms`` per step, each summarised as
         ``min``/``median``/``max`` over steps, plus ``per_step_max``/``per_step_rms`` lists),
-        ``thickness``, ``dt``, ``source``, ``weights``, ``components``, ``obstacles``
+        ``thickness``, ``contact_radius``, ``dt``, ``source``, ``weights``, ``components``, ``obstacles``
         (list of dicts: ``name``, ``vertices``, ``faces``, ``edges``, ``static``), ``origin``.
 
     Notes
@@ -101,20 +101,26 @@ def describe(seq: Sequence) -> dict:
             "per_step_rms": rms.tolist(),
         },
         "thickness": float(seq.thickness),
+        "contact_radius": float(seq.contact_radius),
         "dt": seq.dt,
         "source": seq.source,
         "weights": seq.weights is not None,
         "components": None if seq.components is None else int(len(np.unique(seq.components))),
-        "obstacles": [
-            {
-                "name": ob.name,
-                "vertices": int(ob.positions.shape[-2]),
-                "faces": 0 if ob.faces is None else int(len(ob.faces)),
-                "edges": 0 if ob.edges is None else int(len(ob.edges)),
-                "static": ob.positions.ndim == 2,
-            }
-            for ob in seq.obstacles
-        ],
+        "obstacles": [_obstacle(ob) for ob in seq.obstacles],
+    }
+
+
+def _obstacle(ob) -> dict:
+    if ob.is_half_space:
+        return {"name": ob.name, "half_space": True, "normal": [float(v) for v in ob.normal],
+                "offset": float(ob.offset), "static": True}
+    return {
+        "name": ob.name,
+        "half_space": False,
+        "vertices": int(ob.positions.shape[-2]),
+        "faces": 0 if ob.faces is None else int(len(ob.faces)),
+        "edges": 0 if ob.edges is None else int(len(ob.edges)),
+        "static": ob.positions.ndim == 2,
     }
 
 

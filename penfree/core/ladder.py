@@ -56,7 +56,7 @@ def _min(a):
 def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, weights=None, margins=None,
                  models=LADDER_MODELS, projection="auto", gamma=DEFAULT_GAMMA, bounds_fn=None, fit_fn=None,
                  ceiling=True, replay=False, replay_cap=DEFAULT_REPLAY_CAP, components=None,
-                 progress=None) -> dict:
+                 progress=None, contact_radius=0.0) -> dict:
     """Re-fit every step with each model and score speed against error.
 
     Parameters
@@ -153,7 +153,7 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
         x64 = np.asarray(x, dtype=np.float64)
         x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
         x_next = np.asarray(positions[s + 1], dtype=np.float64) if s + 1 < T else None
-        r_q = query_radius(x64, x_pred, thickness)
+        r_q = query_radius(x64, x_pred, contact_radius)
         states = {"baseline": (x64, 0.0, math.nan)}
         margin = float(margins[i])
         for m in models:

@@ -125,11 +125,17 @@ def obstacle_separation(x, E, F, obstacles, radius, s=0):
     d = np.full(n, float(radius))
     for ob in obstacles or ():
         if ob.is_half_space:
-            nv = np.asarray(ob.normal, dtype=np.float64)
-            d = np.minimum(d, np.maximum((x @ nv - ob.offset) / float(np.linalg.norm(nv)), 0.0))
+            d = np.minimum(d, _half_space_separation(x, E, F, ob))
         else:
             d = np.minimum(d, _mesh_separation(x, E, F, ob, radius, s))
     return d
+
+
+def _half_space_separation(x, E, F, ob):
+    """A vertex's distance to the plane (0 on or behind it): the vertex-face term against
+    a floor, which has no vertices of its own near the scene."""
+    nv = np.asarray(ob.normal, dtype=np.float64)
+    return np.maximum((x @ nv - ob.offset) / float(np.linalg.norm(nv)), 0.0)
 
 
 def _mesh_separation(x, E, F, ob, radius, s):

@@ -33,7 +33,8 @@ report.json key reference (schema ``penfree_report`` = 1; NaN and inf are writte
     rule ``k_1pct`` / ``k_any`` / ``replay_*``:
     ``k_baseline``, ``k_deformed``, ``frame_ms``, ``speedup``);
   - ``certificate``: ``min_margin``, ``all_certified``, ``n_uncertified``,
-    ``uncertified_frames``, ``models`` and ``projections`` ({name: steps});
+    ``uncertified_frames``, ``n_started_dirty`` (steps whose start state already held
+    intersections, kept as they were), ``models`` and ``projections`` ({name: steps});
   - ``worst_steps``: up to 10 rows {``frame``, ``target``, ``k_1pct_baseline``,
     ``k_1pct_deformed``, ``k_any_baseline``, ``k_any_deformed``,
     ``hit_rate_baseline``, ``hit_rate_deformed``, ``k_1pct_gain``};
@@ -94,6 +95,7 @@ def certificate_summary(steps) -> dict:
         "all_certified": bool(ok.all()) if cm.size else False,
         "n_uncertified": int(np.count_nonzero(~ok)),
         "uncertified_frames": frames[~ok].tolist(),
+        "n_started_dirty": int(np.count_nonzero(np.asarray(steps.get("start_intersections", [])) > 0)),
         "models": counts("model"),
         "projections": counts("projection"),
     }
@@ -227,7 +229,8 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
         projection = opts.get("projection", "auto") if isinstance(opts, dict) else "auto"
         lad = model_ladder(seq.positions, steps["frame"], edges=seq.edges, faces=seq.faces,
                            thickness=seq.thickness, weights=seq.weights, margins=steps.get("margin_required"),
-                           projection=projection, replay=replay, progress=progress)
+                           projection=projection, replay=replay, progress=progress,
+                           contact_radius=seq.contact_radius)
     return build_file_report(path, result, stats, ladder=lad, cd_share=cd_share, frame_ms=frame_ms,
                              stats_source=source)
 
@@ -473,6 +476,8 @@ def _file_md(rep):
     out.append(f"- minimum certificate margin: {_f(cert['min_margin'], '.6g')}\n"
                f"- all steps certified: {'yes' if cert['all_certified'] else 'NO'} "
                f"({cert['n_uncertified']} uncertified)\n"
+               f"- steps that started with pre-existing intersections (kept as they were): "
+               f"{cert.get('n_started_dirty', 0)}\n"
                f"- models: {', '.join(f'{k} x{v}' for k, v in cert['models'].items()) or 'n/a'}\n"
                f"- projections: {', '.join(f'{k} x{v}' for k, v in cert['projections'].items()) or 'n/a'}\n")
     ws = rep["worst_steps"]
