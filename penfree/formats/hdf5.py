@@ -234,7 +234,11 @@ def _read_obstacle(g, path, name, where) -> Obstacle:
 def _read_half_space(g, path, name, where) -> Obstacle:
     normal = _read_array(g, "normal", where, "iuf", prefix=path + "/")
     if "offset" in g:
-        offset = _read_array(g, "offset", where, "iuf", prefix=path + "/")
+        ds = _dataset(g, "offset", where)
+        offset = ds[()]
+        if np.asarray(offset).dtype.kind not in "iuf":
+            raise FormatError(f"half-space offset must be a number; got {np.asarray(offset).dtype} "
+                              f"in {where}:/{path}/offset")
     elif "offset" in g.attrs:
         offset = decode_attr(g.attrs["offset"])
     else:
