@@ -38,11 +38,15 @@ from .options import (
 @overwrite_option
 @click.option("--per-vertex", is_flag=True, help="Also store per-vertex residual norms.")
 @click.option("--stats", "with_stats", is_flag=True,
-              help="Also compute trust-region statistics (stats/...) for `penfree report`.")
+              help="Also compute trust-region statistics (stats/...) and the start states' "
+                   "pre-existing intersections for `penfree report`.")
+@click.option("--check-start", is_flag=True,
+              help="Count each start state's pre-existing intersections (steps/start_intersections; "
+                   "about one static verification per step).")
 @click.option("--format", "in_format", default=None, help="Input format (default: from the extension).")
 @json_option
 def command(input_path, output_path, model, projection, margin, thickness, contact_radius, frames, weights_name,
-            threads, overwrite, per_vertex, with_stats, in_format, as_json):
+            threads, overwrite, per_vertex, with_stats, check_start, in_format, as_json):
     """Fit, certify and apply a global affine map to every step of IN.
 
     Each step s moves frame s toward the prediction 2 x^s - x^(s-1); the straight path
@@ -65,6 +69,7 @@ def command(input_path, output_path, model, projection, margin, thickness, conta
         result = deform_sequence(
             seq, model=model, projection=projection, margin=margin, thickness=thickness,
             contact_radius=contact_radius, weights=weights, frames=frame_slice, per_vertex=per_vertex, progress=bar,
+            check_start=check_start or with_stats,
         )
     groups = dict(result.groups)
     if with_stats:

@@ -55,7 +55,7 @@ def required_margin(thickness, margin=None) -> float:
 
 
 def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thickness=None, contact_radius=None,
-                    weights=None, frames=None, per_vertex=False, progress=None) -> DeformOutput:
+                    weights=None, frames=None, per_vertex=False, progress=None, check_start=False) -> DeformOutput:
     """Fit, certify, check and apply one map per step of `seq`.
 
     Parameters
@@ -83,12 +83,17 @@ def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thic
         Also keep per-vertex residual norms (S, N) float32.
     progress : callable or None
         Called once per finished step.
+    check_start : bool
+        Also count each start state's pre-existing intersections
+        (``start_intersections``, `start_state_intersections`); costs about a static
+        verification per step.
 
     Returns
     -------
     DeformOutput
         ``steps`` holds frame, A, b, deformed, model, projection, certificate_margin,
-        margin_required, start_intersections, rank, residual_* / baseline_*, time_fit_s.
+        margin_required, rank, residual_* / baseline_*, time_fit_s (and
+        start_intersections with `check_start`).
 
     Notes
     -----
@@ -103,6 +108,8 @@ def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thic
     m = required_margin(thickness, margin)
     strategy = make_strategy(model, seq, projection, thickness, S_idx.size)
     out = _allocate(seq, S_idx, per_vertex)
+    if check_start:
+        out["start_intersections"] = start_state_intersections(seq, S_idx)
     _warm_up(seq, S_idx[0], model, projection)
     for k, s in enumerate(S_idx):
         gate = StepGate(seq.positions[s], edges=seq.edges, faces=seq.faces, thickness=thickness,
@@ -139,7 +146,6 @@ def _allocate(seq, S_idx, per_vertex) -> dict:
         "projection": np.empty(S, dtype=object),
         "certificate_margin": np.empty(S),
         "margin_required": np.empty(S),
-        "start_intersections": np.zeros(S, dtype=np.int64),
         "rank": np.empty(S, dtype=np.int64),
         "time_fit_s": np.empty(S),
     }
@@ -151,6 +157,19 @@ def _allocate(seq, S_idx, per_vertex) -> dict:
         out["residual_pred_per_vertex"] = np.empty((S, N), dtype=np.float32)
         out["residual_next_per_vertex"] = np.full((S, N), np.nan, dtype=np.float32)
     return out
+
+
+def start_state_intersections(seq, frames) -> np.ndarray:
+    """(S,) int64: pairs already touching or intersecting at each step's start frame.
+
+    `verify.start_intersections` of ``positions[s]`` for every `s` in `frames` (0 for
+    a scene without topology): the steps "started dirty" that `report` counts.
+    """
+    from .verify import start_intersections
+
+    if seq.kind == "points":
+        return np.zeros(len(frames), dtype=np.int64)
+    return np.array([start_intersections(seq.positions[s], seq.edges, seq.faces) for s in frames], dtype=np.int64)
 
 
 def _warm_up(seq, s, model, projection):
@@ -169,10 +188,6 @@ def _record(out, k, step, o, seq, per_vertex):
     out["margin_required"][k] = step.margin
     out["rank"][k] = o.rank
     out["time_fit_s"][k] = o.time_fit_s
-    if seq.kind != "points":
-        from .verify import start_intersections
-
-        out["start_intersections"][k] = start_intersections(step.x64, seq.edges, seq.faces)
     targets = {"pred": step.x_pred}
     if step.s + 1 < seq.n_frames:
         targets["next"] = seq.positions[step.s + 1]
@@ -200,7 +215,8 @@ def summarize_steps(steps: dict) -> dict:
         "min_certificate_margin": float(np.min(steps["certificate_margin"])),
         # every written map passes its own certificate: its certified bound >= the margin it needed
         "all_certified": bool(np.all(np.asarray(steps["certificate_margin"]) >= steps["margin_required"])),
-        "steps_started_dirty": int(np.count_nonzero(np.asarray(steps.get("start_intersections", 0)) > 0)),
+        "steps_started_dirty": (int(np.count_nonzero(np.asarray(steps["start_intersections"]) > 0))
+                                if "start_intersections" in steps else None),
         "residual_next_rms_ratio": ratio(steps["residual_next_rms"][nxt] ** 2, steps["baseline_next_rms"][nxt] ** 2) ** 0.5
         if nxt.any() else math.nan,
         "residual_pred_rms_ratio": ratio(steps["residual_pred_rms"] ** 2, steps["baseline_pred_rms"] ** 2) ** 0.5,

@@ -75,11 +75,22 @@ WORST_STEPS = 10
 PROJECTED_FORMULA = "T' = T_frame ((1 - f) + f K_deformed / K_baseline) + t_fit, speedup = T_frame / T'"
 
 
-def certificate_summary(steps) -> dict:
+def _started_dirty(steps, seq, frames):
+    if "start_intersections" in steps:
+        return int(np.count_nonzero(np.asarray(steps["start_intersections"]) > 0))
+    if seq is None:
+        return None
+    from ..core.pipeline import start_state_intersections
+
+    return int(np.count_nonzero(start_state_intersections(seq, np.asarray(frames, dtype=np.int64)) > 0))
+
+
+def certificate_summary(steps, seq=None) -> dict:
     """Min margin, all certified yes/no, models and projections used, from ``steps/``.
 
     A step counts as certified when its ``certificate_margin`` is finite and at least
-    its ``margin_required`` (0 where the file has none).
+    its ``margin_required`` (0 where the file has none). The steps that started dirty
+    come from ``steps/start_intersections``, else are counted on `seq` when given.
     """
     cm = np.asarray(steps.get("certificate_margin", []), dtype=np.float64)
     req = np.asarray(steps.get("margin_required", np.zeros_like(cm)), dtype=np.float64)
@@ -95,7 +106,7 @@ def certificate_summary(steps) -> dict:
         "all_certified": bool(ok.all()) if cm.size else False,
         "n_uncertified": int(np.count_nonzero(~ok)),
         "uncertified_frames": frames[~ok].tolist(),
-        "n_started_dirty": int(np.count_nonzero(np.asarray(steps.get("start_intersections", [])) > 0)),
+        "n_started_dirty": _started_dirty(steps, seq, frames),
         "models": counts("model"),
         "projections": counts("projection"),
     }
@@ -137,11 +148,12 @@ def build_file_report(path, result, stats, *, ladder=None, cd_share=DEFAULT_CD_S
         "file": os.fspath(path),
         "name": os.path.basename(os.fspath(path)),
         "scene": {"kind": seq.kind, "n_vertices": seq.n_vertices, "n_frames": seq.n_frames,
-                  "n_steps": int(len(stats["frame"])), "thickness": seq.thickness, "dtype": str(seq.dtype)},
+                  "n_steps": int(len(stats["frame"])), "thickness": seq.thickness,
+                  "contact_radius": seq.contact_radius, "dtype": str(seq.dtype)},
         "deform_options": dict(result.attrs),
         "stats_source": stats_source,
         "summary": summarize(stats, steps, cd_share=cd_share, frame_ms=frame_ms),
-        "certificate": certificate_summary(steps),
+        "certificate": certificate_summary(steps, seq),
         "worst_steps": worst_steps(stats),
         "steps": per_step,
         "r_hist": hist,
@@ -477,7 +489,7 @@ def _file_md(rep):
                f"- all steps certified: {'yes' if cert['all_certified'] else 'NO'} "
                f"({cert['n_uncertified']} uncertified)\n"
                f"- steps that started with pre-existing intersections (kept as they were): "
-               f"{cert.get('n_started_dirty', 0)}\n"
+               f"{_f(cert.get('n_started_dirty'), 'd')}\n"
                f"- models: {', '.join(f'{k} x{v}' for k, v in cert['models'].items()) or 'n/a'}\n"
                f"- projections: {', '.join(f'{k} x{v}' for k, v in cert['projections'].items()) or 'n/a'}\n")
     ws = rep["worst_steps"]

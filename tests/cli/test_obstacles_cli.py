@@ -140,17 +140,21 @@ def test_pre_existing_crossing_reported(tmp_path):
         f["faces"] = np.array([[0, 1, 2]])
         f["edges"] = np.array([[3, 4]])
     out = tmp_path / "out.h5"
-    r = _run("deform", src, "-o", out, "--model", "affine")
+    r = _run("deform", src, "-o", out, "--model", "affine", "--check-start")
     assert r.exit_code == 0 and "pre-existing" in r.output, r.output
+    r = _run("deform", src, "-o", tmp_path / "unchecked.h5", "--model", "affine")
+    assert r.exit_code == 0 and "pre-existing" not in r.output, r.output
     r = _run("verify", out)
     assert r.exit_code == 0, r.output
     assert "pre-existing intersections, unchanged" in r.output
     assert _run("verify", out, "--strict").exit_code == 1
     assert _run("verify", src).exit_code == 1  # a raw recording is judged as it is
-    rep = tmp_path / "rep"
-    r = _run("report", out, "-o", rep, "--no-ladder", "--no-plots")
-    assert r.exit_code == 0, r.output
-    assert json.loads((rep / "report.json").read_text())["files"][0]["certificate"]["n_started_dirty"] == 3
+    for res in (out, tmp_path / "unchecked.h5"):  # stored by deform, or counted by report
+        rep = tmp_path / f"rep-{res.stem}"
+        r = _run("report", res, "-o", rep, "--no-ladder", "--no-plots")
+        assert r.exit_code == 0, r.output
+        assert json.loads((rep / "report.json").read_text())["files"][0]["certificate"]["n_started_dirty"] == 3
+        assert "pre-existing intersections" in (rep / "report.md").read_text()
 
 
 @pytest.mark.parametrize("fmt", ["npz", "xdmf", "h5"])

@@ -149,9 +149,10 @@ def test_pre_existing_crossing():
     A = rot([1, 1, 0.3], 3.0)
     frames = np.array([x0 @ np.linalg.matrix_power(A, t).T + [0.01 * t, 0, 0] for t in range(4)])
     seq = scene(frames, faces=np.array([[0, 1, 2]]), edges=np.array([[3, 4], [4, 5]]))
-    out = deform_sequence(seq, model="affine")
+    out = deform_sequence(seq, model="affine", check_start=True)
     assert set(out.steps["model"].tolist()) == {"affine"}
     assert (out.steps["start_intersections"] > 0).all()
+    assert summarize_steps(out.steps)["steps_started_dirty"] == len(out.steps["frame"])
     res = DeformResult(sequence=seq, steps=out.steps, origin="mem")
     for k, s in enumerate(out.steps["frame"]):
         r = verify_step(seq.positions[s], out.steps["deformed"][k], edges=seq.edges, faces=seq.faces,
