@@ -29,7 +29,7 @@ from typing import Optional
 import numpy as np
 from numba import njit
 
-from ..constants import DEFAULT_MAX_PAIRS
+from ..constants import CCD_MAX_EXACT, DEFAULT_MAX_PAIRS
 from ..errors import InputError
 from .broad_phase import (
     edge_edge_candidates,
@@ -208,7 +208,9 @@ def _excuse(pre, kind, ij, idx, X0, X1, ccd_kind, thickness, status, sep):
         status[clear], sep[clear] = SEPARATED, sp[st == SEPARATED]
         hit = np.flatnonzero(status != SEPARATED)
     if len(hit):
-        touch = ccd_indexed(X0, X0, idx[hit], ccd_kind, 0.0)[0] != SEPARATED
+        # In chunks of CCD_MAX_EXACT: every pair decided exactly, none excused unproven.
+        touch = np.concatenate([ccd_indexed(X0, X0, idx[hit[c:c + CCD_MAX_EXACT]], ccd_kind, 0.0)[0] != SEPARATED
+                                for c in range(0, len(hit), CCD_MAX_EXACT)])
         old = hit[touch]
         pre.add(kind, ij[old], status[old], np.zeros(len(old)), np.zeros(len(old)))
         status[old], sep[old] = SEPARATED, 0.0

@@ -110,7 +110,7 @@ def test_obstacle_group_unknown_form(tmp_path, members):
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
-def test_identical_frames_are_certified(tmp_path):
+def test_issue9_finding6_zero_motion_steps_are_certified(tmp_path):
     """issue 9 finding 6: zero-motion steps are not "NOT ALL" / uncertified."""
     pos, F = landing_sheet(n=5, T=4, h0=0.5)
     frames = np.concatenate([np.repeat(pos[:1], 3, axis=0), pos])
