@@ -399,7 +399,11 @@ def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=
     Conservative: a near-miss closer than ~1e-10 of a pair's extent may be
     reported with thickness > 0; with thickness 0 the CCD is exact. Pairs
     sharing a vertex are adjacent and skipped. A violating start state is
-    reported (``start_ok`` False) and makes the step not ok.
+    reported (``start_ok`` False) and makes the step not ok, unless
+    `pre_existing`: then a pair is excused only when the exact thickness-0 test
+    proves it touching at t = 0 (with a nonsingular affine path it stays as it was;
+    a path that pulls it apart or through shows as a new contact of a neighbouring
+    pair, which is not excused).
 
     Examples
     --------
