@@ -401,9 +401,9 @@ def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=
     sharing a vertex are adjacent and skipped. A violating start state is
     reported (``start_ok`` False) and makes the step not ok, unless
     `pre_existing`: then a pair is excused only when the exact thickness-0 test
-    proves it touching at t = 0 (with a nonsingular affine path it stays as it was;
-    a path that pulls it apart or through shows as a new contact of a neighbouring
-    pair, which is not excused).
+    proves it touching at t = 0 (along a nonsingular affine path it stays as it
+    was; an edge sliding out of a face it crosses meets the face's edges, a new
+    contact that is not excused).
 
     Examples
     --------
