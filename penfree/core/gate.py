@@ -7,13 +7,17 @@ states" and "Obstacles"):
   applied map. With thickness 0 the margin is 0: a nonsingular path maps every
   primitive by one bijection, so no disjoint pair ever meets, whatever the start
   state holds;
-- with thickness h > 0 the margin is ``m = 1 / MARGIN_GAP_RADIUS_FACTOR``: pairs that
-  start more than ``R = h / m`` apart (times 1 + `NEAR_SLACK_REL`) stay at least h apart.
-  The pairs closer than R are found once per step (`verify.near_pairs`, one proximity
-  query) and each candidate's path goes through the conservative CCD for them
-  (`verify.check_pairs`): a pair at least h apart must stay so, a pair resting inside h
-  must stay disjoint, a pair touching at the start is left as it was. No global margin
-  is derived from the smallest gap, so resting contact does not freeze a step;
+- with thickness h > 0 the margin is ``m = 1 / MARGIN_GAP_RADIUS_FACTOR``. A map whose
+  path keeps ``sigma_min >= m_c`` (``m_c >= m``: its rigorous fast bound, else m)
+  keeps every pair that starts more than ``(h + 2 delta) / m_c`` apart at least h
+  apart (delta: the rounding of the stored x_def). The pairs within
+  ``R = h / m`` (times 1 + `NEAR_SLACK_REL`) and their start distances are found
+  once per step (`verify.near_pairs`, one proximity query); each candidate's path
+  goes through the conservative CCD (`verify.check_pairs`) for those of them closer
+  than its own ``(h + 2 delta) / m_c``: a pair at least h apart must stay so, a pair
+  resting inside h must stay disjoint, a pair touching at the start is left as it
+  was. No global margin is derived from the smallest gap, so resting contact does
+  not freeze a step;
 - obstacles held at the step's frame: half-spaces exactly, meshes by conservative CCD
   (`verify.verify_step` with ``self_pairs=False``).
 
@@ -25,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..constants import MARGIN_GAP_RADIUS_FACTOR, NEAR_SLACK_REL
-from .certificate import certify_map
+from .certificate import certify_map, fast_margin_bound
 
 _U = 2.0**-53
 
@@ -53,6 +57,16 @@ def deviation_bound(x, x_def, A, b) -> float:
     return float(np.sqrt((e * e).sum(axis=1)).max() * (1.0 + 8.0 * _U)) if len(x) else 0.0
 
 
+def _start_distance(x, kind, idx):
+    """Distances at `x` of the pairs `idx` (rows p, f0, f1, f2 or ea0, ea1, eb0, eb1)."""
+    from .distance import edge_edge_distance, point_triangle_distance
+
+    if not len(idx):
+        return np.zeros(0)
+    P = [x[idx[:, c]] for c in range(4)]
+    return point_triangle_distance(*P) if kind == "vf" else edge_edge_distance(*P)
+
+
 class StepGate:
     """The safety gate of one step: start state `x`, topology, thickness, obstacles at `frame`.
 
@@ -78,11 +92,13 @@ class StepGate:
 
     @property
     def near(self):
-        """Pairs within `near_radius` at the start (computed once, on first use)."""
+        """``[(kind, ij, idx, d0)]``: pairs within `near_radius` at the start and their
+        start distances (computed once, on first use)."""
         if self._near is None:
             from .verify import near_pairs
 
-            self._near = near_pairs(self.x, self.edges, self.faces, near_radius(self.thickness))
+            self._near = [(kind, ij, idx, _start_distance(self.x, kind, idx))
+                          for kind, ij, idx in near_pairs(self.x, self.edges, self.faces, near_radius(self.thickness))]
         return self._near
 
     def passes(self, x_def, maps) -> bool:
@@ -107,11 +123,19 @@ class StepGate:
         from .verify import check_pairs
 
         limit = 0.5 * NEAR_SLACK_REL * self.thickness
+        reach = 0.0  # pairs starting closer than this are not covered by the certificates
         for A, b, rows in maps:
             sl = slice(None) if rows is None else rows
-            if not deviation_bound(self.x[sl], x_def64[sl], np.asarray(A, np.float64), np.asarray(b, np.float64)) <= limit:
+            A = np.asarray(A, np.float64)
+            delta = deviation_bound(self.x[sl], x_def64[sl], A, np.asarray(b, np.float64))
+            if not delta <= limit:
                 return False
-        return check_pairs(self.near, self.x, x_def64, self.thickness)
+            m_c = max(self.margin, fast_margin_bound(A))  # certify_map(A, margin) passed
+            reach = max(reach, (self.thickness + 2.0 * delta) / m_c)
+        # distances are rounded: a relative and an absolute allowance, well above it
+        reach = reach * (1.0 + 1e-6) + 1e-12 * (float(np.abs(self.x).max()) if len(self.x) else 0.0)
+        close = [(kind, ij[d0 < reach], idx[d0 < reach]) for kind, ij, idx, d0 in self.near]
+        return check_pairs(close, self.x, x_def64, self.thickness)
 
     def _obstacles_ok(self, x_def64) -> bool:
         if not self.obstacles:

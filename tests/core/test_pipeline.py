@@ -232,3 +232,23 @@ def test_trust_region_sees_the_floor():
     # The same vertex-plane terms from a floor mesh; its edges add edge-edge terms on top.
     np.testing.assert_allclose(b_mesh[resting], b_floor[resting], rtol=1e-9)
     assert (b_mesh <= b_free + 1e-15).all() and (b_floor <= b_free + 1e-15).all()
+
+
+def test_gate_checks_near_pairs_the_margin_does_not_cover():
+    """Two layers 2h apart squeezed to 0.4h: the certificate at margin 0.1 passes, the
+    near-pair CCD refuses; a mild squeeze that keeps h passes (oracle: verify_step)."""
+    h = 0.01
+    n = 5
+    u, v = sheet(n, 0.3)
+    F = grid_faces(n)
+    lower = np.stack([u, v, np.zeros_like(u)], axis=1)
+    x = np.concatenate([lower, lower + [0, 0, 2 * h]])
+    FF = np.concatenate([F, F + len(u)])
+    gate = StepGate(x, faces=FF, thickness=h)
+    for sz, expect in ((0.2, False), (0.8, True)):
+        A = np.diag([1.0, 1.0, sz])
+        assert certify(A, margin_rule(h))
+        x_def = x @ A.T
+        ok = verify_step(x, x_def, faces=FF, thickness=h, pre_existing=True).ok
+        assert ok == expect
+        assert gate.passes(x_def, [(A, np.zeros(3), None)]) == expect
