@@ -72,10 +72,14 @@ SYM_SAFETY_REL = 1e-12
 #: than that (one proximity query) go through the conservative CCD. 0.1 barely
 #: restricts per-frame motion (rotations up to arccos(0.1) = 84 deg per step).
 MARGIN_GAP_RADIUS_FACTOR = 10.0
-#: The near-pair radius is MARGIN_GAP_RADIUS_FACTOR * h * (1 + this): the slack
-#: absorbs the rounding of the stored x_def (at most NEAR_SLACK_REL / 2 * h per
-#: vertex from the exact A x + b, checked per candidate).
+#: The stored x_def may differ from the exact A x + b by at most NEAR_SLACK_REL / 2 * h
+#: per vertex (checked per candidate), so no near-pair radius exceeds
+#: MARGIN_GAP_RADIUS_FACTOR * h * (1 + NEAR_SLACK_REL).
 NEAR_SLACK_REL = 0.01
+#: First radius of the gate's near-pair query, in thicknesses: a map with
+#: sigma_min >= m_c only needs the pairs within (h + 2 delta) / m_c, about 1.0-1.2 h for
+#: per-frame motion; the query is redone larger for a map that shrinks more.
+NEAR_FIRST_FACTOR = 1.5
 
 # --- verification (SPEC section 6) -------------------------------------------
 #: Pairs listed per step by default (``verify --max-pairs``).

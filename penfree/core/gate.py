@@ -10,11 +10,11 @@ states" and "Obstacles"):
 - with thickness h > 0 the margin is ``m = 1 / MARGIN_GAP_RADIUS_FACTOR``. A map whose
   path keeps ``sigma_min >= m_c`` (``m_c >= m``: its rigorous fast bound, else m)
   keeps every pair that starts more than ``(h + 2 delta) / m_c`` apart at least h
-  apart (delta: the rounding of the stored x_def). The pairs within
-  ``R = h / m`` (times 1 + `NEAR_SLACK_REL`) and their start distances are found
-  once per step (`verify.near_pairs`, one proximity query); each candidate's path
-  goes through the conservative CCD (`verify.check_pairs`) for those of them closer
-  than its own ``(h + 2 delta) / m_c``: a pair at least h apart must stay so, a pair
+  apart (delta: the rounding of the stored x_def, at most `NEAR_SLACK_REL` h / 2).
+  The pairs closer than that and their start distances come from one proximity
+  query per step (`verify.near_pairs`, radius `NEAR_FIRST_FACTOR` h, redone larger,
+  up to ``1.01 h / m``, only for a candidate that needs it); each candidate's path
+  goes through the conservative CCD (`verify.check_pairs`) for them: a pair at least h apart must stay so, a pair
   resting inside h must stay disjoint, a pair touching at the start is left as it
   was. No global margin is derived from the smallest gap, so resting contact does
   not freeze a step;
@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..constants import MARGIN_GAP_RADIUS_FACTOR, NEAR_SLACK_REL
+from ..constants import MARGIN_GAP_RADIUS_FACTOR, NEAR_FIRST_FACTOR, NEAR_SLACK_REL
 from .certificate import certify_map, fast_margin_bound
 
 _U = 2.0**-53
@@ -37,11 +37,6 @@ _U = 2.0**-53
 def margin_rule(thickness) -> float:
     """The certificate margin every path uses: 0 for thickness 0, else ``1 / MARGIN_GAP_RADIUS_FACTOR``."""
     return 0.0 if float(thickness) <= 0.0 else 1.0 / MARGIN_GAP_RADIUS_FACTOR
-
-
-def near_radius(thickness) -> float:
-    """Radius of the near-pair query: pairs farther apart are covered by the certificate."""
-    return MARGIN_GAP_RADIUS_FACTOR * float(thickness) * (1.0 + NEAR_SLACK_REL)
 
 
 def deviation_bound(x, x_def, A, b) -> float:
@@ -87,18 +82,20 @@ class StepGate:
         self.margin = margin_rule(self.thickness)
         self.obstacles = list(obstacles or ())
         self.frame = int(frame)
-        self._near = None
+        self._near, self._near_radius = None, 0.0
         self.has_topology = (edges is not None and len(edges) > 0) or (faces is not None and len(faces) > 0)
 
-    @property
-    def near(self):
-        """``[(kind, ij, idx, d0)]``: pairs within `near_radius` at the start and their
-        start distances (computed once, on first use)."""
-        if self._near is None:
+    def near(self, reach):
+        """``[(kind, ij, idx, d0)]``: the pairs within at least `reach` at the start, with
+        their start distances. One proximity query, redone with a larger radius only when
+        a candidate needs one (a strongly shrinking map): pairs it leaves out start
+        farther apart than `reach`."""
+        if self._near is None or reach > self._near_radius:
             from .verify import near_pairs
 
+            self._near_radius = max(reach, NEAR_FIRST_FACTOR * self.thickness)
             self._near = [(kind, ij, idx, _start_distance(self.x, kind, idx))
-                          for kind, ij, idx in near_pairs(self.x, self.edges, self.faces, near_radius(self.thickness))]
+                          for kind, ij, idx in near_pairs(self.x, self.edges, self.faces, self._near_radius)]
         return self._near
 
     def passes(self, x_def, maps) -> bool:
@@ -134,7 +131,7 @@ class StepGate:
             reach = max(reach, (self.thickness + 2.0 * delta) / m_c)
         # distances are rounded: a relative and an absolute allowance, well above it
         reach = reach * (1.0 + 1e-6) + 1e-12 * (float(np.abs(self.x).max()) if len(self.x) else 0.0)
-        close = [(kind, ij[d0 < reach], idx[d0 < reach]) for kind, ij, idx, d0 in self.near]
+        close = [(kind, ij[d0 < reach], idx[d0 < reach]) for kind, ij, idx, d0 in self.near(reach)]
         return check_pairs(close, self.x, x_def64, self.thickness)
 
     def _obstacles_ok(self, x_def64) -> bool:
