@@ -178,6 +178,30 @@ def test_npz_half_space_and_vertices_alias(tmp_path):
     np.savez(src, positions=pos, faces=F, contact_radius=np.float64(0.01),
              **{"obstacles/ground/normal": np.array([0.0, 0, 1]), "obstacles/ground/offset": np.float64(0.0),
                 "obstacles/box/vertices": box.positions, "obstacles/box/faces": box.faces})
+    r = _run("info", src)
+    assert r.exit_code == 0 and "half-space" in r.output and "contact radius:" in r.output, r.output
     r = _run("deform", src, "-o", tmp_path / "out.h5")
     assert r.exit_code == 0, r.output
     assert _run("verify", tmp_path / "out.h5").exit_code == 0
+    assert _run("verify", src).exit_code == 0
+    r = _run("report", tmp_path / "out.h5", "-o", tmp_path / "rep", "--no-ladder", "--no-plots",
+             "--fail-if-uncertified")
+    assert r.exit_code == 0, r.output
+
+
+def test_npz_obstacle_unknown_form(tmp_path):
+    pos, F = landing_sheet(n=4, T=3)
+    src = tmp_path / "bad.npz"
+    np.savez(src, positions=pos, faces=F, **{"obstacles/weird/points": np.zeros((3, 3))})
+    for args in (("info", src), ("verify", src)):
+        r = _run(*args)
+        assert r.exit_code == 2 and len(r.output.strip().splitlines()) == 1 and "weird" in r.output, r.output
+
+
+def test_xdmf_half_space_through_info_and_verify(tmp_path):
+    src = _landing_file(tmp_path / "landing.h5")
+    out = tmp_path / "conv.xdmf"
+    assert _run("convert", src, out).exit_code == 0
+    r = _run("info", out)
+    assert r.exit_code == 0 and "half-space" in r.output and "obstacle collider" in r.output, r.output
+    assert _run("verify", out).exit_code == 0
