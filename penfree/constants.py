@@ -76,6 +76,9 @@ MARGIN_GAP_RADIUS_FACTOR = 10.0
 #: per vertex (checked per candidate), so no near-pair radius exceeds
 #: MARGIN_GAP_RADIUS_FACTOR * h * (1 + NEAR_SLACK_REL).
 NEAR_SLACK_REL = 0.01
+#: Fractions of the preferred map's step tried when every full candidate fails the
+#: safety gate (a prefix of its certified path), before doing nothing.
+SHORTEN_LEVELS = (0.5, 0.25, 0.1)
 #: First radius of the gate's near-pair query, in thicknesses: a map with
 #: sigma_min >= m_c only needs the pairs within (h + 2 delta) / m_c, about 1.0-1.2 h for
 #: per-frame motion; the query is redone larger for a map that shrinks more.

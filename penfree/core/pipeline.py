@@ -1,7 +1,8 @@
 """The sequence driver: runs the per-step stages over a whole recording.
 
 `deform_sequence` is a short loop: per step, a strategy (`strategy.SingleMap`,
-`strategy.Auto`, `strategy.PerComponent`) proposes maps, preferred first; the first one
+`strategy.Auto`, `strategy.PerComponent`) proposes maps, preferred first (and the preferred
+one's shortened steps before doing nothing, `strategy.with_shortened`); the first one
 that passes the shared safety gate (`gate.StepGate`: the exact certificate with the
 one margin rule, the near-pair CCD when a thickness applies, the obstacles) is
 applied. Doing nothing ends every chain and always passes. It returns plain arrays in
@@ -20,7 +21,7 @@ from .certificate import certify_map
 from .gate import StepGate, margin_rule
 from .stats import residual_summary
 from .step import fit_step
-from .strategy import make_strategy, selection_arrays, step_input  # noqa: F401  (selection_arrays: API)
+from .strategy import make_strategy, selection_arrays, step_input, with_shortened  # noqa: F401  (selection_arrays: API)
 
 
 @dataclass
@@ -115,7 +116,7 @@ def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thic
         gate = StepGate(seq.positions[s], edges=seq.edges, faces=seq.faces, thickness=thickness,
                         obstacles=seq.obstacles, frame=s)
         step = step_input(seq, s, m, gate, weights, contact_radius)
-        outcome = next(o for o in strategy.outcomes(step) if gate.passes(o.x_def, o.maps))
+        outcome = next(o for o in with_shortened(strategy.outcomes(step), step) if gate.passes(o.x_def, o.maps))
         for A_applied, _, _ in outcome.maps:  # belt and braces: every applied map through the one gate
             if not certify_map(A_applied, m):
                 raise CertificateError(f"step {s}: the applied map failed the exact certificate (margin {m})")

@@ -11,6 +11,11 @@ doing nothing (`nothing`), which always passes: the last resort.
   CD passes (`selection.rank`), the trust-region predictor seeing the obstacles;
 - `PerComponent`: one map per object (`components.per_component_step`), then the
   `SingleMap` chain of the affine model.
+
+`with_shortened` puts, just before doing nothing, the strategy's first (preferred)
+map with its step shortened (`shortened`): ``x + alpha (x_def - x)``, whose straight
+path is the first `alpha` of the preferred map's path. A vertex resting on the floor
+that every full step would push through may allow a part of one.
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..constants import MODELS
+from ..constants import MODELS, SHORTEN_LEVELS
 from .certificate import certified_margin
 from .gate import StepGate
 from .stats import query_radius
@@ -69,6 +74,36 @@ def nothing(step: StepInput) -> Outcome:
     """Doing nothing: ``x_def = x`` bit for bit (always safe)."""
     return Outcome(_I3.copy(), np.zeros(3), np.array(step.x, copy=True), "none", "none",
                    certified_margin(_I3, step.margin), 0, 0.0, [(_I3, np.zeros(3), None)])
+
+
+def shortened(o: Outcome, step: StepInput, alpha: float) -> Outcome:
+    """`o` with its step shortened to ``alpha``: map ``I + alpha (A - I)``, ``alpha b``.
+
+    Only for a single finite map. ``M_alpha(t) = M(alpha t)``, so the shortened path
+    is a prefix of `o`'s: it passes every certificate `o`'s map passes.
+    """
+    A = np.eye(3) + alpha * (np.asarray(o.A, np.float64) - np.eye(3))
+    b = alpha * np.asarray(o.b, np.float64)
+    x_def = (step.x64 + alpha * (np.asarray(o.x_def, np.float64) - step.x64)).astype(step.x.dtype, copy=False)
+    return Outcome(A, b, x_def, f"{o.model}-short{alpha:g}", o.projection, certified_margin(A, step.margin),
+                   o.rank, o.time_fit_s, [(A, b, None)], dict(o.extra))
+
+
+def with_shortened(outcomes, step: StepInput):
+    """`outcomes`, with the first one's shortened steps (`SHORTEN_LEVELS`) just before
+    doing nothing (the last resort; nothing after it is ever needed)."""
+    first = None
+    for o in outcomes:
+        if o.model == "none":
+            break
+        first = o if first is None else first
+        yield o
+    else:
+        o = None
+    if first is not None and np.isfinite(first.A).all():
+        for alpha in SHORTEN_LEVELS:
+            yield shortened(first, step, alpha)
+    yield nothing(step) if o is None else o
 
 
 class SingleMap:

@@ -64,6 +64,9 @@ def test_cloth_landing_on_floor(model, floor):
     out = deform_sequence(seq, model=model)
     _check_written(seq, out)
     assert _nontrivial(out), out.steps["model"]
+    # a step that starts half landed still moves (a shortened step of the preferred map)
+    landed = [(pos[s, :, 2] < 2e-3).any() for s in out.steps["frame"]]
+    assert any(m != "none" for m, h in zip(out.steps["model"].tolist(), landed) if h), out.steps["model"]
     assert summarize_steps(out.steps)["all_certified"]
     # Without the obstacle the same fits would go through the floor on the landed steps.
     free = deform_sequence(scene(pos, faces=F), model=model)
@@ -205,6 +208,22 @@ def test_start_within_thickness_summary_is_true():
 def test_one_margin_rule():
     assert margin_rule(0.0) == 0.0 and margin_rule(1e-3) == 0.1
     assert required_margin(0.0) == 0.0 and required_margin(1e-3, 0.3) == 0.3 and required_margin(1e-3, 0.01) == 0.1
+
+
+def test_shortened_step_is_a_prefix_of_the_path():
+    from penfree.core.strategy import Outcome, StepInput, shortened
+
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(20, 3))
+    A = rot([1, 2, 3], 20.0) @ np.diag([1.2, 0.9, 1.0])
+    b = np.array([0.1, -0.2, 0.3])
+    o = Outcome(A, b, x @ A.T + b, "affine", "none", 0.5, 3, 0.0, [(A, b, None)])
+    step = StepInput(1, x, x, x, x, 0.0, 0.0, None)
+    for alpha in (0.5, 0.1):
+        so = shortened(o, step, alpha)
+        np.testing.assert_allclose(so.x_def, x + alpha * (o.x_def - x), atol=1e-14)
+        np.testing.assert_allclose(so.x_def, x @ so.A.T + so.b, atol=1e-14)
+        assert certify(so.A, 0.0) and so.model == f"affine-short{alpha:g}"
 
 
 def test_gate_refuses_a_map_through_the_floor_and_falls_back():
