@@ -38,6 +38,7 @@ from .broad_phase import (
     vertex_face_candidates_between,
 )
 from .ccd import SEPARATED, ccd_indexed
+from .distance import edge_edge_distance, point_triangle_distance
 from .topology import as_positions, as_topology, edges_from_faces
 
 #: Candidate pairs handed to the narrow phase at once (bounds the per-block
@@ -196,13 +197,21 @@ def _excuse(pre, kind, ij, idx, X0, X1, ccd_kind, thickness, status, sep):
     """Clear (in place) the hits of `status` that the start state explains.
 
     A pair within `thickness` at t = 0 (resting contact) passes when its path keeps
-    it disjoint (thickness-0 CCD; `sep` gets that bound). A pair that touches or
-    intersects at t = 0 is pre-existing: it is added to `pre` and cleared.
+    it disjoint (thickness-0 CCD; `sep` gets that bound). Resting means clearly
+    inside: the static CCD flags it (conservative, so it may flag a pair just
+    outside) and its computed distance is below the thickness by more than its
+    rounding; a pair at the thickness itself keeps the full thickness check. A pair
+    that touches or intersects at t = 0 is pre-existing: it is added to `pre` and
+    cleared.
     """
     hit = np.flatnonzero(status != SEPARATED)
     if thickness > 0.0 and len(hit):
         near = ccd_indexed(X0, X0, idx[hit], ccd_kind, thickness)[0] != SEPARATED
         rest = hit[near]
+        P = [X0[idx[rest, c]] for c in range(4)]
+        d0 = (point_triangle_distance(*P) if ccd_kind == "vf" else edge_edge_distance(*P)) if len(rest) else np.zeros(0)
+        scale = float(np.abs(X0).max()) if X0.size else 0.0
+        rest = rest[d0 < thickness * (1.0 - 1e-9) - 1e-12 * scale]
         st, _, sp, _ = ccd_indexed(X0, X1, idx[rest], ccd_kind, 0.0)
         clear = rest[st == SEPARATED]
         status[clear], sep[clear] = SEPARATED, sp[st == SEPARATED]
