@@ -271,3 +271,15 @@ def test_gate_checks_near_pairs_the_margin_does_not_cover():
         ok = verify_step(x, x_def, faces=FF, thickness=h, pre_existing=True).ok
         assert ok == expect
         assert gate.passes(x_def, [(A, np.zeros(3), None)]) == expect
+
+
+def test_resting_means_clearly_inside_the_thickness():
+    """Deform-result reading: a pair at 0.5 h may come closer (not touch); a pair that
+    starts at h itself must keep h."""
+    h = 0.01
+    for start, end, ok in ((0.5 * h, 0.2 * h, True), (0.5 * h, -0.2 * h, False), (h * (1 + 1e-12), 0.5 * h, False)):
+        x0 = np.array([[0.0, 0, 0], [1, 0, 0], [0.5, -0.5, start], [0.5, 0.5, start]])
+        x1 = x0.copy()
+        x1[2:, 2] = end
+        r = verify_step(x0, x1, edges=[[0, 1], [2, 3]], thickness=h, pre_existing=True)
+        assert r.ok == ok, (start, end, r.pairs)
