@@ -21,7 +21,7 @@ from .certificate import certify_map
 from .gate import StepGate, margin_rule
 from .stats import residual_summary
 from .step import fit_step
-from .strategy import make_strategy, selection_arrays, step_input, with_shortened  # noqa: F401  (selection_arrays: API)
+from .strategy import make_strategy, step_input, with_shortened
 
 
 @dataclass

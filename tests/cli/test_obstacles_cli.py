@@ -13,7 +13,7 @@ from penfree.cli import main
 from penfree.formats import read_sequence
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "core"))
-from _scenes import box_mesh, grid_faces, landing_sheet  # noqa: E402
+from _scenes import box_mesh, landing_sheet  # noqa: E402
 
 
 def _run(*args):
