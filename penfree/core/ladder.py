@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from ..constants import DEFAULT_GAMMA, DEFAULT_REPLAY_CAP
-from .stats import _mean, query_radius, ratio_stats, replay_passes, residual_summary
+from .stats import _mean, contact_distance, query_radius, ratio_stats, replay_passes, residual_summary
 
 #: The ladder, cheapest first (SPEC section 4), then the automatic choice.
 LADDER_MODELS = ("translation", "rigid", "similarity", "affine", "auto")
@@ -153,7 +153,7 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
         x64 = np.asarray(x, dtype=np.float64)
         x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
         x_next = np.asarray(positions[s + 1], dtype=np.float64) if s + 1 < T else None
-        r_q = query_radius(x64, x_pred, contact_radius)
+        r_q = query_radius(x64, x_pred, contact_distance(contact_radius, thickness))
         states = {"baseline": (x64, 0.0, math.nan)}
         margin = float(margins[i])
         for m in models:

@@ -2,7 +2,8 @@
 
 For every step and for both start states (``baseline``: the recorded positions `x`;
 ``deformed``: `x_def`) the OGC bounds `b` are computed once at the start state, with
-the step's query radius `r_q = contact_radius + max_v |x_pred[v] - x[v]|` (the same for both
+the step's query radius `r_q = contact_radius + max_v |x_pred[v] - x[v]|` (the contact
+radius taken at least as large as the thickness, `contact_distance`; the same for both
 start states, so they are comparable). Against each target (``next``: the simulator's
 next frame; ``pred``: the constant-velocity prediction) the per-vertex ratio
 `r_v = |y_v - x_s[v]| / b_v` gives the hit rate and the CD-pass estimates.
@@ -53,8 +54,19 @@ _LO, _HI = R_HIST_DECADES
 R_HIST_EDGES = np.concatenate(([0.0], np.logspace(_LO, _HI, (_HI - _LO) * R_HIST_BINS_PER_DECADE + 1), [np.inf]))
 
 
+def contact_distance(contact_radius, thickness) -> float:
+    """The contact distance that sizes the query radius: the contact radius, never below
+    the thickness (a simulator's contact radius is at least its hard separation; a file
+    that gives only a thickness keeps the query radius it had before the two were
+    separated)."""
+    return max(float(contact_radius or 0.0), float(thickness or 0.0))
+
+
 def query_radius(x, x_pred, contact_radius=0.0) -> float:
-    """`r_q = contact_radius + max_v |x_pred[v] - x[v]|`, the step's OGC query radius."""
+    """`r_q = contact_radius + max_v |x_pred[v] - x[v]|`, the step's OGC query radius.
+
+    Callers pass `contact_distance(contact_radius, thickness)`.
+    """
     d = np.linalg.norm(np.asarray(x_pred, dtype=np.float64) - np.asarray(x, dtype=np.float64), axis=1)
     return float(contact_radius) + (float(d.max()) if d.size else 0.0)
 
@@ -346,7 +358,7 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
         targets = {"pred": x_pred}
         if f + 1 < T:
             targets["next"] = np.asarray(positions[f + 1], dtype=np.float64)
-        r_q = query_radius(x, x_pred, contact_radius)
+        r_q = query_radius(x, x_pred, contact_distance(contact_radius, thickness))
         out["query_radius"][i] = r_q
         frame_now[0] = int(f)
 

@@ -28,7 +28,7 @@ import numpy as np
 from ..constants import MODELS, SHORTEN_LEVELS
 from .certificate import certified_margin
 from .gate import StepGate
-from .stats import query_radius
+from .stats import contact_distance, query_radius
 from .step import fit_step
 
 _I3 = np.eye(3)
@@ -225,11 +225,12 @@ def make_strategy(model, seq, projection, thickness, n_steps):
 
 
 def step_input(seq, s, margin, gate, weights, contact_radius) -> StepInput:
+    """Step `s` of `seq`; the query radius from the contact radius (at least the gate's thickness)."""
     x_prev, x = seq.positions[s - 1], seq.positions[s]
     x64 = np.ascontiguousarray(x, dtype=np.float64)
     x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
-    return StepInput(int(s), x_prev, x, x64, x_pred, query_radius(x64, x_pred, contact_radius), margin, gate,
-                     weights)
+    r_q = query_radius(x64, x_pred, contact_distance(contact_radius, gate.thickness))
+    return StepInput(int(s), x_prev, x, x64, x_pred, r_q, margin, gate, weights)
 
 
 def selection_arrays(table_rows) -> dict:
