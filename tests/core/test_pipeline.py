@@ -283,3 +283,16 @@ def test_resting_means_clearly_inside_the_thickness():
         x1[2:, 2] = end
         r = verify_step(x0, x1, edges=[[0, 1], [2, 3]], thickness=h, pre_existing=True)
         assert r.ok == ok, (start, end, r.pairs)
+
+
+def test_query_radius_contact_distance():
+    """r_q = contact radius + largest predicted move; the contact radius never below the thickness."""
+    from penfree.core.stats import compute_stats, contact_distance
+
+    assert contact_distance(0.02, 0.01) == 0.02 and contact_distance(0.0, 0.01) == 0.01
+    pos, F = landing_sheet(n=5, T=4)
+    frames = np.arange(1, 4)
+    disp = np.array([np.linalg.norm(pos[s] - pos[s - 1], axis=1).max() for s in frames])
+    for h, r, expect in ((0.01, 0.0, 0.01), (0.01, 0.03, 0.03), (0.0, 0.0, 0.0)):
+        st = compute_stats(pos, deformed=pos[frames], frames=frames, faces=F, thickness=h, contact_radius=r)
+        np.testing.assert_allclose(st["query_radius"], expect + disp, rtol=1e-12)
