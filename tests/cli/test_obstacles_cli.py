@@ -205,3 +205,33 @@ def test_xdmf_half_space_through_info_and_verify(tmp_path):
     r = _run("info", out)
     assert r.exit_code == 0 and "half-space" in r.output and "obstacle collider" in r.output, r.output
     assert _run("verify", out).exit_code == 0
+
+
+def test_start_inside_thickness_file_is_certified(tmp_path):
+    """Summary truth: a file whose start states lie inside the thickness (two layers
+    resting 0.4 h apart) is all certified, moves, verifies, and passes --fail-if-uncertified."""
+    h = 0.01
+    u = np.linspace(0, 0.3, 5)
+    U, V = np.meshgrid(u, u, indexing="ij")
+    lower = np.stack([U.ravel(), V.ravel(), np.zeros(25)], axis=1)
+    base = np.concatenate([lower, lower + [0, 0, 0.4 * h]])
+    F = []
+    for i in range(4):
+        for j in range(4):
+            p, q, r, s = i * 5 + j, (i + 1) * 5 + j, i * 5 + j + 1, (i + 1) * 5 + j + 1
+            F += [[p, q, r], [q, s, r]]
+    F = np.array(F)
+    A = np.array([[1.01, 0.02, 0], [-0.02, 1.0, 0], [0, 0, 1.0]])
+    src = tmp_path / "resting.h5"
+    with h5py.File(src, "w") as f:
+        f["positions"] = np.array([base @ np.linalg.matrix_power(A, t).T for t in range(4)])
+        f["faces"] = np.concatenate([F, F + 25])
+        f.attrs["thickness"] = h
+    out = tmp_path / "out.h5"
+    r = _run("deform", src, "-o", out, "--model", "affine", "--json")
+    assert r.exit_code == 0, r.output
+    d = json.loads(r.output)
+    assert d["all_certified"] is True and set(d["models"]) == {"affine"}
+    assert _run("verify", out).exit_code == 0
+    r = _run("report", out, "-o", tmp_path / "rep", "--no-ladder", "--no-plots", "--fail-if-uncertified")
+    assert r.exit_code == 0, r.output
