@@ -66,10 +66,23 @@ FAST_CERT_ROUNDING_C = 64.0
 #: the rounded result still passes the fast test.
 SYM_SAFETY_REL = 1e-12
 
-#: With a thickness h, the margin is h / d0 (d0 the smallest start gap). d0 is only
-#: searched within this many thicknesses: beyond it the margin h / radius (<= 0.1)
-#: is already sufficient and barely restricts per-frame motion (arccos(0.1) = 84 deg).
+#: The one margin rule (`core.gate.margin_rule`): with a thickness h > 0 every map
+#: must keep sigma_min(I + tD) above 1 / this factor, which keeps every pair that
+#: starts more than this many thicknesses apart at least h apart; the pairs closer
+#: than that (one proximity query) go through the conservative CCD. 0.1 barely
+#: restricts per-frame motion (rotations up to arccos(0.1) = 84 deg per step).
 MARGIN_GAP_RADIUS_FACTOR = 10.0
+#: The stored x_def may differ from the exact A x + b by at most NEAR_SLACK_REL / 2 * h
+#: per vertex (checked per candidate), so no near-pair radius exceeds
+#: MARGIN_GAP_RADIUS_FACTOR * h * (1 + NEAR_SLACK_REL).
+NEAR_SLACK_REL = 0.01
+#: Fractions of the preferred map's step tried when every full candidate fails the
+#: safety gate (a prefix of its certified path), before doing nothing.
+SHORTEN_LEVELS = (0.5, 0.25, 0.1)
+#: First radius of the gate's near-pair query, in thicknesses: a map with
+#: sigma_min >= m_c only needs the pairs within (h + 2 delta) / m_c, about 1.0-1.2 h for
+#: per-frame motion; the query is redone larger for a map that shrinks more.
+NEAR_FIRST_FACTOR = 1.5
 
 # --- verification (SPEC section 6) -------------------------------------------
 #: Pairs listed per step by default (``verify --max-pairs``).

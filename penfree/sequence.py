@@ -43,6 +43,11 @@ def check_weights(w, n, where) -> np.ndarray:
     return w
 
 
+#: The obstacle group forms every reader accepts (quoted in its error messages).
+OBSTACLE_FORMS = ("positions or vertices (M, 3) / (T, M, 3) with faces (K, 3) or edges (K, 2); "
+                  "or normal (3,) with offset (attribute or dataset)")
+
+
 @dataclass
 class Obstacle:
     """A collider the scene must not enter: a mesh (kinematic or static) or a half-space.
@@ -73,7 +78,7 @@ class Obstacle:
         return self.normal is not None
 
     def frame(self, s: int) -> np.ndarray:
-        """Positions `(M, 3)` at frame `s` (the same array for a static obstacle)."""
+        """Positions `(M, 3)` at frame `s` (the same array for a static obstacle; mesh obstacles only)."""
         if self.positions.ndim == 2:
             return self.positions
         return self.positions[s]
@@ -185,15 +190,8 @@ class Sequence:
                     f"components must be ({n},) integer to match positions; got {c.shape} {c.dtype} in {where}:/components"
                 )
             self.components = c.astype(np.int64)
-        try:
-            t = float(self.thickness or 0.0)
-        except (TypeError, ValueError):
-            t = float("nan")
-        if not np.isfinite(t) or t < 0:
-            raise InputError(f"thickness must be finite and >= 0; got {self.thickness!r} in {where}:@thickness")
-        if t > SCALE_MAX:
-            raise InputError(f"thickness must be at most {SCALE_MAX:g} (the supported range); got {t:g} in {where}:@thickness")
-        self.thickness = t
+        self.thickness = _distance(self.thickness, where, "thickness")
+        self.contact_radius = _distance(self.contact_radius, where, "contact_radius")
         if self.dt is not None:
             try:
                 dt = float(self.dt)
@@ -231,10 +229,29 @@ def _check_topology(arr, k, n, where, name):
     return np.ascontiguousarray(a)
 
 
+def _distance(value, where, name):
+    """A file distance attribute: finite and >= 0 (None reads as 0)."""
+    try:
+        t = float(value or 0.0)
+    except (TypeError, ValueError):
+        t = float("nan")
+    if not np.isfinite(t) or t < 0:
+        raise InputError(f"{name} must be finite and >= 0; got {value!r} in {where}:@{name}")
+    if t > SCALE_MAX:
+        raise InputError(f"{name} must be at most {SCALE_MAX:g} (the supported range); got {t:g} in {where}:@{name}")
+    return t
+
+
 def _check_obstacle(ob: Obstacle, T: int, where: str):
     if not isinstance(ob.name, str) or not ob.name or "/" in ob.name or ob.name in (".", ".."):
         raise InputError(f"obstacle names must be non-empty and hold no '/'; got {ob.name!r} in {where}:/obstacles")
     ds = f"{where}:/obstacles/{ob.name}"
+    if ob.normal is not None or ob.offset is not None:
+        _check_half_space(ob, ds)
+        return
+    if ob.positions is None:
+        raise InputError(f"obstacle needs positions (or vertices) with faces or edges, or a normal (3,) "
+                         f"with an offset, in {ds}")
     p = np.asarray(ob.positions)
     if p.ndim == 2 and p.shape[1] == 3:
         pass
@@ -253,3 +270,22 @@ def _check_obstacle(ob: Obstacle, T: int, where: str):
     ob.edges = _check_topology(ob.edges, 2, m, where, f"obstacles/{ob.name}/edges")
     if (ob.faces is None or not len(ob.faces)) and (ob.edges is None or not len(ob.edges)):
         raise InputError(f"obstacle needs faces or edges in {ds}")
+
+
+def _check_half_space(ob: Obstacle, ds: str):
+    """A half-space: ``normal`` (3,) finite and non-zero, ``offset`` a finite scalar, nothing else."""
+    if ob.positions is not None or ob.faces is not None or ob.edges is not None:
+        raise InputError(f"obstacle must be either a mesh (positions + faces/edges) or a half-space "
+                         f"(normal + offset), not both, in {ds}")
+    n = np.asarray(ob.normal if ob.normal is not None else np.zeros(0))
+    if n.shape != (3,) or n.dtype.kind not in "fiu" or not np.isfinite(n).all() or not np.any(n):
+        raise InputError(f"half-space normal must be a finite non-zero (3,) vector; got shape {n.shape} in {ds}/normal")
+    try:
+        o = float(np.asarray(ob.offset).reshape(()))
+    except (TypeError, ValueError):
+        o = float("nan")
+    if ob.offset is None or not np.isfinite(o):
+        raise InputError(f"half-space offset must be a finite scalar (attribute or dataset); got {ob.offset!r} "
+                         f"in {ds}/offset")
+    ob.normal = n.astype(np.float64)
+    ob.offset = o

@@ -14,6 +14,12 @@ at both frames, so the prune is conservative), keeping every pair that can
 come within ``query`` of each other. Distances at or above ``query`` are
 reported as ``>= query``.
 
+Obstacles (``obstacles/<name>``) are checked too: a static mesh obstacle is
+appended to every frame as extra, motionless primitives (so scene-obstacle pairs
+enter the same measure), and a half-space by the smallest signed distance of any
+vertex over all frames (exact for straight paths: the distance to a plane is
+linear along them).
+
 Usage::
 
     python samples/check.py samples/cloth.h5 [--substeps 16] [--query Q]
@@ -195,7 +201,35 @@ def load(path):
         edges = f["edges"][()].astype(np.int64) if "edges" in f else None
         faces = f["faces"][()].astype(np.int64) if "faces" in f else None
         attrs = dict(f.attrs)
+        obstacles = {}
+        for name, g in (f["obstacles"].items() if "obstacles" in f else ()):
+            obstacles[name] = {k: g[k][()] for k in g}
+            obstacles[name].update({k: g.attrs[k] for k in g.attrs})
+    attrs["obstacles"] = obstacles
     return X, edges, faces, attrs
+
+
+def with_obstacles(X, faces, obstacles):
+    """Append static mesh obstacles (faces) to every frame: ``(X, faces)`` of the union."""
+    X = np.asarray(X, dtype=np.float64)
+    for ob in obstacles.values():
+        if "faces" not in ob:
+            continue
+        V = np.asarray(ob.get("vertices", ob.get("positions")), dtype=np.float64)
+        n = X.shape[1]
+        X = np.concatenate([X, np.broadcast_to(V, (X.shape[0],) + V.shape)], axis=1)
+        faces = np.concatenate([faces, np.asarray(ob["faces"], dtype=np.int64) + n])
+    return X, faces
+
+
+def half_space_min(X, obstacles):
+    """Smallest signed distance of any vertex to any half-space over all frames (inf if none)."""
+    best = np.inf
+    for ob in obstacles.values():
+        if "normal" in ob:
+            nv = np.asarray(ob["normal"], dtype=np.float64)
+            best = min(best, float(((X @ nv - float(ob["offset"])) / np.linalg.norm(nv)).min()))
+    return best
 
 
 def main(argv=None):
@@ -207,12 +241,17 @@ def main(argv=None):
     a = ap.parse_args(argv)
     X, edges, faces, attrs = load(a.path)
     thickness = float(attrs.get("thickness", 0.0))
+    obstacles = attrs["obstacles"]
+    plane = half_space_min(np.asarray(X, dtype=np.float64), obstacles)
+    if faces is not None and any("faces" in ob for ob in obstacles.values()):
+        X, faces = with_obstacles(X, faces, obstacles)
     r = check_sequence(X, edges, faces, a.query, a.substeps, range(0, len(X) - 1, a.every))
-    ok = r["min"] > max(thickness, 1e-9)
+    ok = r["min"] > max(thickness, 1e-9) and plane > max(thickness, 1e-9)
     print(f"{a.path}: T={X.shape[0]} N={X.shape[1]} thickness={thickness:.4g} "
           f"min_edge={r['min_edge']:.4g} max_disp/min_edge={r['max_disp_ratio']:.3f} "
           f"min_separation={'>=' if r['min'] >= r['query'] else ''}{r['min']:.4g} "
-          f"(query {r['query']:.4g}, {a.substeps} substeps) -> {'OK' if ok else 'FAIL'}")
+          f"(query {r['query']:.4g}, {a.substeps} substeps)"
+          f"{'' if plane == np.inf else f' half-space min distance={plane:.4g}'} -> {'OK' if ok else 'FAIL'}")
     return 0 if ok else 1
 
 

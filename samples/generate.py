@@ -6,8 +6,8 @@ Importable (``sys.path.insert(0, "samples"); import generate``) and a script::
         [--seed S] [--dtype float32|float64]
     python samples/generate.py SCENE -o OUT_DIR --mesh obj|ply ...
 
-Scenes: rods, cloth, twisting-cloth, twisting-cloth-contact, cables, twisted-cables
-(simulated, ``scenes.py``),
+Scenes: rods, cloth, twisting-cloth, twisting-cloth-contact, cables, twisted-cables,
+cloth-drape-box (simulated, ``scenes.py``),
 yarn-bundle, cloth-ref (kinematic 64K reference scenes, ``reference.py``).
 Every scene function returns ``(positions, topology, attrs)``; `write_h5`
 writes the SPEC section 2 layout and `write_mesh_sequence` numbered OBJ
@@ -38,6 +38,7 @@ SCENES = {
     "cables": scenes.cables,
     "twisting-cloth-contact": scenes.twisting_cloth_contact,
     "twisted-cables": scenes.twisted_cables,
+    "cloth-drape-box": scenes.cloth_drape_box,
     "yarn-bundle": reference.yarn_bundle,
     "cloth-ref": reference.cloth_ref,
 }
@@ -71,10 +72,11 @@ def write_h5(path, positions, topology, attrs, dtype="float32", source=None):
     positions : (T, N, 3) float
         Stored as `dtype`, one frame per chunk, gzip + shuffle.
     topology : dict
-        ``edges`` / ``faces`` / ``components``, stored as int32.
+        ``edges`` / ``faces`` / ``components``, stored as int32; ``obstacles``
+        ``{name: {"vertices", "faces"} or {"normal", "offset"}}`` (SPEC section 2).
     attrs : dict
-        ``dt`` and ``thickness``; ``description`` becomes ``source`` unless
-        `source` is given.
+        ``dt`` and ``thickness`` (and ``contact_radius`` when the scene has one);
+        ``description`` becomes ``source`` unless `source` is given.
     """
     import h5py
 
@@ -91,7 +93,17 @@ def write_h5(path, positions, topology, attrs, dtype="float32", source=None):
         f.attrs["penfree_format"] = FORMAT_VERSION
         f.attrs["dt"] = float(attrs["dt"])
         f.attrs["thickness"] = float(attrs["thickness"])
+        if "contact_radius" in attrs:
+            f.attrs["contact_radius"] = float(attrs["contact_radius"])
         f.attrs["source"] = source or attrs["description"]
+        for name, ob in (topology.get("obstacles") or {}).items():
+            g = f.create_group(f"obstacles/{name}", track_order=True)
+            if "normal" in ob:
+                g.create_dataset("normal", data=np.asarray(ob["normal"], dtype=np.float64), track_times=False)
+                g.attrs["offset"] = float(ob["offset"])
+            else:
+                g.create_dataset("vertices", data=np.asarray(ob["vertices"], dtype=np.float64), track_times=False)
+                g.create_dataset("faces", data=np.asarray(ob["faces"], dtype=np.int32), track_times=False)
 
 
 def write_mesh_sequence(directory, positions, topology, kind, digits=4):

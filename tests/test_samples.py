@@ -255,3 +255,31 @@ def test_solver_contact_keeps_strands_apart(pbd):
         assert X[-1, n:, 2].mean() < 0.0 or contact  # the free throw ends below the other strand
     assert mins[False] < thickness
     assert mins[True] > thickness
+
+
+# --- the draping sample with obstacles (issue 10) ------------------------------
+
+def test_drape_sample_layout_and_obstacles():
+    """cloth_drape_box.h5: a box mesh obstacle, a ground half-space, both distances."""
+    path = SAMPLES / "cloth_drape_box.h5"
+    assert path.stat().st_size <= 1_000_000
+    X, edges, faces, attrs = check.load(path)
+    assert X.shape[0] >= 40 and X.shape[1] >= 500 and faces is not None
+    assert 0 < attrs["thickness"] < attrs["contact_radius"]
+    obs = attrs["obstacles"]
+    assert set(obs) == {"box", "ground"}
+    assert obs["box"]["vertices"].shape == (8, 3) and obs["box"]["faces"].shape == (12, 3)
+    assert obs["ground"]["normal"].tolist() == [0.0, 0.0, 1.0] and float(obs["ground"]["offset"]) == 0.0
+    # every frame above the ground by more than the thickness (exact for straight paths)
+    assert check.half_space_min(X.astype(np.float64), obs) > attrs["thickness"]
+    # the cloth lands on the box and reaches the ground
+    top = (np.abs(X[-1, :, 0] - 0.0) < 0.2) & (np.abs(X[-1, :, 1]) < 0.2)
+    assert np.all(X[-1, top, 2] > 0.35) and X[-1, :, 2].min() < 0.05
+
+
+@pytest.mark.parametrize("frame", [0, -1])
+def test_drape_sample_separation_from_the_box(frame):
+    X, _, faces, attrs = check.load(SAMPLES / "cloth_drape_box.h5")
+    XX, FF = check.with_obstacles(X[[frame]], faces, attrs["obstacles"])
+    h = float(attrs["thickness"])
+    assert check.step_min_distance(XX[0], XX[0], None, FF, 2 * h + 1e-9, substeps=1) > h

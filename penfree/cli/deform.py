@@ -11,7 +11,7 @@ from ..constants import MODELS, PROJECTIONS
 from ..errors import InputError
 from .options import (
     FiniteFloat, Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames,
-    set_threads, thickness_option, threads_option, usd_options,
+    contact_radius_option, set_threads, thickness_option, threads_option, usd_options,
 )
 
 
@@ -27,8 +27,10 @@ from .options import (
               help="How a map that fails the certificate is made safe.")
 @click.option("--margin", type=FiniteFloat(0.0, 1.0, max_open=True), default=None,
               help="Required lower bound m of sigma_min(I + tD) on [0,1] "
-                   "(default: thickness / smallest start gap when a thickness applies, else 0).")
+                   "(default and minimum: 0, or 0.1 when a thickness applies; the pairs the "
+                   "certificate does not keep apart, at most 10 thicknesses, are checked by CCD).")
 @thickness_option
+@contact_radius_option
 @frames_option
 @click.option("--weights", "weights_name", default=None, metavar="DATASET",
               help="Per-vertex fit weights: a dataset of the input file (e.g. weights, masses).")
@@ -36,12 +38,16 @@ from .options import (
 @overwrite_option
 @click.option("--per-vertex", is_flag=True, help="Also store per-vertex residual norms.")
 @click.option("--stats", "with_stats", is_flag=True,
-              help="Also compute trust-region statistics (stats/...) for `penfree report`.")
+              help="Also compute trust-region statistics (stats/...) and the start states' "
+                   "pre-existing intersections for `penfree report`.")
+@click.option("--check-start", is_flag=True,
+              help="Count each start state's pre-existing intersections (steps/start_intersections; "
+                   "about one static verification per step).")
 @click.option("--format", "in_format", default=None, help="Input format (default: from the extension).")
 @usd_options
 @json_option
-def command(input_path, output_path, model, projection, margin, thickness, frames, weights_name,
-            threads, overwrite, per_vertex, with_stats, in_format, usd_prims, usd_obstacles, as_json):
+def command(input_path, output_path, model, projection, margin, thickness, contact_radius, frames, weights_name,
+            threads, overwrite, per_vertex, with_stats, check_start, in_format, usd_prims, usd_obstacles, as_json):
     """Fit, certify and apply a global affine map to every step of IN.
 
     Each step s moves frame s toward the prediction 2 x^s - x^(s-1); the straight path
@@ -65,14 +71,15 @@ def command(input_path, output_path, model, projection, margin, thickness, frame
     with Progress(n_steps, "deform") as bar:
         result = deform_sequence(
             seq, model=model, projection=projection, margin=margin, thickness=thickness,
-            weights=weights, frames=frame_slice, per_vertex=per_vertex, progress=bar,
+            contact_radius=contact_radius, weights=weights, frames=frame_slice, per_vertex=per_vertex, progress=bar,
+            check_start=check_start or with_stats,
         )
     groups = dict(result.groups)
     if with_stats:
         from ..core.trust.stats import compute_stats
 
         with Progress(len(result.steps["frame"]), "stats") as bar:
-            groups["stats"] = compute_stats_for(seq, result, thickness, compute_stats, bar)
+            groups["stats"] = compute_stats_for(seq, result, thickness, compute_stats, bar, contact_radius)
     attrs = {
         "penfree_version": __version__,
         "input": os.path.basename(input_path),
@@ -90,13 +97,15 @@ def command(input_path, output_path, model, projection, margin, thickness, frame
     _print_summary(summary, seq)
 
 
-def compute_stats_for(seq, result, thickness, compute_stats, progress):
+def compute_stats_for(seq, result, thickness, compute_stats, progress, contact_radius=None):
     """Trust-region statistics of a fresh deform result (stats/... datasets)."""
     steps = result.steps
     return compute_stats(
         positions=seq.positions, frames=steps["frame"], deformed=steps["deformed"],
         edges=seq.edges, faces=seq.faces,
         thickness=seq.thickness if thickness is None else thickness, progress=progress,
+        contact_radius=seq.contact_radius if contact_radius is None else contact_radius,
+        obstacles=seq.obstacles,
     )
 
 
@@ -134,6 +143,9 @@ def _print_summary(s, seq):
     click.echo(f"  projections      {projs}")
     click.echo(f"  certified        {'all steps' if s['all_certified'] else 'NOT ALL'}; "
                f"min sigma_min bound {s['min_certificate_margin']:.4f}")
+    if s.get("steps_started_dirty"):
+        click.echo(f"  start states     {s['steps_started_dirty']} step(s) start with pre-existing intersections "
+                   "(kept as they were)")
     if s["residual_next_rms_ratio"] == s["residual_next_rms_ratio"]:
         click.echo(f"  to next frame    RMS distance x{s['residual_next_rms_ratio']:.3f} of doing nothing "
                    f"({(1 - s['residual_next_rms_ratio']) * 100:+.1f}% closer)")

@@ -34,6 +34,7 @@ def _lines(d: dict) -> list:
         ("step motion max", "min {} / median {} / max {}".format(*map(_fmt, mo["max"].values()))),
         ("step motion rms", "min {} / median {} / max {}".format(*map(_fmt, mo["rms"].values()))),
         ("thickness", d["thickness"]),
+        ("contact radius", d["contact_radius"]),
         ("dt", d["dt"]),
         ("source", d["source"]),
         ("weights", "yes" if d["weights"] else "no"),
@@ -41,7 +42,7 @@ def _lines(d: dict) -> list:
     ]
     for ob in d["obstacles"]:
         if ob.get("half_space"):
-            rows.append((f"obstacle {ob['name']}", f"half-space n.x > {_fmt(ob['offset'])}, n = {_fmt(ob['normal'])}"))
+            rows.append((f"obstacle {ob['name']}", f"half-space normal {_fmt(ob['normal'])}, offset {_fmt(ob['offset'])}"))
             continue
         topo = f"{ob['faces']} faces" if ob["faces"] else f"{ob['edges']} edges"
         rows.append((f"obstacle {ob['name']}", f"{ob['vertices']} vertices, {topo}, {'static' if ob['static'] else 'moving'}"))

@@ -56,7 +56,12 @@ class FiniteFloat(click.FloatRange):
 
 thickness_option = click.option(
     "--thickness", type=FiniteFloat(min=0.0), default=None,
-    help="Contact distance (default: the file's thickness attribute, else 0).",
+    help="Hard minimum separation guaranteed / checked (default: the file's thickness attribute, else 0).",
+)
+contact_radius_option = click.option(
+    "--contact-radius", "contact_radius", type=FiniteFloat(min=0.0), default=None,
+    help="The simulator's contact distance; sizes the trust-region query radius only, never a separation "
+         "(default: the file's contact_radius attribute, else 0).",
 )
 
 

@@ -29,12 +29,16 @@ def _round_down(x, digits=6):
 def _step_line(step):
     r = step.result
     head = f"step {step.frame:>5} -> {step.target}: "
+    pre = f"; {r.n_pre_existing} pre-existing intersections, unchanged" if r.n_pre_existing else ""
     if step.ok:
         # a lower bound of the distance of every non-adjacent pair over the step, never above the truth
         sep = "> 0" if not r.min_separation > 0 else f">= {_round_down(r.min_separation)}"
         cert = "" if step.certificate is None else f", certificate {'ok' if step.certificate else 'FAILED (unclaimed)'}"
-        return head + f"OK ({r.method}, min separation {sep}{cert})"
+        return head + f"OK ({r.method}, min separation {sep}{cert}){pre}"
     parts = []
+    if step.strict and r.n_pre_existing:
+        parts.append(f"{r.n_pre_existing} pre-existing intersection(s) (--strict) "
+                     f"[{', '.join(map(_pair_text, r.pre_existing))}]")
     if not r.start_ok:
         parts.append(f"start state: {r.n_start_violations} pair(s) [{', '.join(map(_pair_text, r.start_violations))}]")
     if r.n_violations:
@@ -58,12 +62,17 @@ def _step_line(step):
               help="Deform results: 'ccd' runs the full CCD on every step; 'auto' proves affine "
                    "steps from their exact certificate when it applies, else CCD; 'certificate' "
                    "never runs CCD (unprovable steps fail). All are sound.")
-def command(path, thickness, frames, threads, as_json, max_pairs, mode):
+@click.option("--strict", is_flag=True,
+              help="Deform results: a start state with pre-existing intersections fails its step "
+                   "(default: reported, OK when the path leaves them unchanged).")
+def command(path, thickness, frames, threads, as_json, max_pairs, mode, strict):
     """Check that no two non-adjacent primitives come within THICKNESS along each step.
 
     A deform result is checked from positions[frame] to steps/deformed (plus the exact
-    certificate of steps/A); a raw sequence from frame s to s+1. Exit 0: all steps safe;
-    1: a violation (including a start state that already violates); 2: unusable input.
+    certificate of steps/A): the path must add no new intersecting or thickness-violating
+    pair; intersections already in the start state are reported as pre-existing (a
+    failure with --strict). A raw sequence is checked from frame s to s+1, its start
+    states included. Exit 0: all steps safe; 1: a violation; 2: unusable input.
     """
     from ..core.pipeline.verification import n_steps, verify_file
 
@@ -71,7 +80,7 @@ def command(path, thickness, frames, threads, as_json, max_pairs, mode):
     set_threads(threads)
     with Progress(n_steps(path, frame_slice), "verify") as bar:
         report = verify_file(path, thickness=thickness, frames=frame_slice, mode=mode,
-                             max_pairs=max_pairs, progress=bar)
+                             max_pairs=max_pairs, progress=bar, strict=strict)
     if not report.steps:  # "all steps safe" about nothing would be a false claim
         raise InputError(f"--frames {frames} selects no step of {path} ({report.kind}); "
                          f"nothing to verify" if frames is not None else f"{path} holds no step to verify")
@@ -81,6 +90,8 @@ def command(path, thickness, frames, threads, as_json, max_pairs, mode):
         for step in report.steps:
             click.echo(_step_line(step))
         verdict = "all steps safe" if report.ok else f"{report.n_failed} step(s) VIOLATE"
+        if report.n_started_dirty:
+            verdict += f"; {report.n_started_dirty} step(s) started with pre-existing intersections"
         click.echo(f"{report.origin}: {len(report.steps)} step(s) checked ({report.kind}, thickness "
                    f"{report.thickness:g}): {verdict}")
     if not report.ok:

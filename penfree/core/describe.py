@@ -70,9 +70,9 @@ def describe(seq: Sequence) -> dict:
         ``edge_length_median`` (frame 0; faces' edges for triangles; None for points),
         ``motion`` (``max`` and ``rms`` per step, each summarised as
         ``min``/``median``/``max`` over steps, plus ``per_step_max``/``per_step_rms`` lists),
-        ``thickness``, ``dt``, ``source``, ``weights``, ``components``, ``obstacles``
-        (list of dicts: ``name``, ``vertices``, ``faces``, ``edges``, ``static``; half-spaces add
-        ``half_space``, ``normal``, ``offset``), ``origin``.
+        ``thickness``, ``contact_radius``, ``dt``, ``source``, ``weights``, ``components``, ``obstacles``
+        (list of dicts: ``name``, ``half_space``, ``vertices``, ``faces``, ``edges``, ``static``;
+        half-spaces add ``normal``, ``offset``), ``origin``.
 
     Notes
     -----
@@ -101,6 +101,7 @@ def describe(seq: Sequence) -> dict:
             "per_step_rms": rms.tolist(),
         },
         "thickness": float(seq.thickness),
+        "contact_radius": float(seq.contact_radius),
         "dt": seq.dt,
         "source": seq.source,
         "weights": seq.weights is not None,
@@ -111,10 +112,11 @@ def describe(seq: Sequence) -> dict:
 
 def _obstacle(ob) -> dict:
     if ob.is_half_space:
-        return {"name": ob.name, "half_space": True, "normal": np.asarray(ob.normal, dtype=float).tolist(),
+        return {"name": ob.name, "half_space": True, "normal": [float(v) for v in ob.normal],
                 "offset": float(ob.offset), "vertices": 0, "faces": 0, "edges": 0, "static": True}
     return {
         "name": ob.name,
+        "half_space": False,
         "vertices": int(ob.positions.shape[-2]),
         "faces": 0 if ob.faces is None else int(len(ob.faces)),
         "edges": 0 if ob.edges is None else int(len(ob.edges)),

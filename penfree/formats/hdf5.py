@@ -2,8 +2,9 @@
 
 ``positions (T, N, 3)`` float32/float64, one frame per chunk; ``edges``,
 ``faces``, ``weights``, ``components``; attrs ``penfree_format``, ``dt``,
-``thickness`` (alias ``contact_radius``), ``source``; kinematic obstacles in
-``obstacles/<name>/{positions, faces, edges}``.
+``thickness`` (hard minimum separation), ``contact_radius`` (the simulator's contact
+distance; never a separation), ``source``; obstacles in ``obstacles/<name>/`` as
+meshes ``{positions|vertices, faces, edges}`` or half-spaces ``{normal, offset}``.
 
 Errors name the file and the dataset: ``frames.h5:/positions``.
 
@@ -25,7 +26,7 @@ import numpy as np
 from ..constants import FORMAT_VERSION
 from ..errors import FormatError, InputError
 from ._json import json_default
-from ..sequence import Obstacle, Sequence
+from ..sequence import OBSTACLE_FORMS, Obstacle, Sequence
 from ._registry import register
 from .atomic import atomic_file
 
@@ -212,10 +213,8 @@ def read_from_h5(f: h5py.File, where: str) -> Sequence:
         origin=where,
     )
     attrs = f.attrs
-    thickness = _scalar_attr(attrs, "thickness", where)
-    if thickness is None:
-        thickness = _scalar_attr(attrs, "contact_radius", where)
-    seq.thickness = thickness or 0.0
+    seq.thickness = _scalar_attr(attrs, "thickness", where) or 0.0
+    seq.contact_radius = _scalar_attr(attrs, "contact_radius", where) or 0.0
     seq.dt = _scalar_attr(attrs, "dt", where)
     if seq.dt is not None and not seq.dt > 0:
         raise InputError(f"attribute dt must be > 0; got {seq.dt!r} in {where}:@dt")
@@ -232,12 +231,19 @@ def read_from_h5(f: h5py.File, where: str) -> Sequence:
 
 
 def _read_obstacle(g, path, name, where) -> Obstacle:
-    if not isinstance(g, h5py.Group) or "positions" not in g:
-        raise FormatError(f"obstacle must be a group with positions (T, M, 3) or (M, 3) in {where}:/{path}")
-    ds_name = f"{path}/positions"
-    ds = _dataset(g, "positions", where, prefix=path + "/")
+    """A mesh obstacle (positions or vertices, with faces or edges) or a half-space (normal, offset)."""
+    keys = set(g) if isinstance(g, h5py.Group) else set()
+    mesh = [k for k in ("positions", "vertices") if k in keys]
+    if isinstance(g, h5py.Group) and "normal" in keys and not mesh:
+        return _read_half_space(g, path, name, where)
+    if not mesh or len(mesh) > 1 or not ({"faces", "edges"} & keys):
+        got = "a dataset" if not isinstance(g, h5py.Group) else f"members {sorted(keys) or 'none'}"
+        raise FormatError(f"obstacle {name!r} has an unknown form ({got}); expected {OBSTACLE_FORMS} "
+                          f"in {where}:/{path}")
+    ds_name = f"{path}/{mesh[0]}"
+    ds = _dataset(g, mesh[0], where, prefix=path + "/")
     if ds is None:  # a dangling link
-        raise FormatError(f"obstacle positions must be a dataset (T, M, 3) or (M, 3) in {where}:/{path}/positions")
+        raise FormatError(f"obstacle {mesh[0]} must be a dataset (T, M, 3) or (M, 3) in {where}:/{ds_name}")
     if ds.ndim == 2:
         pos = ds[()]
         if pos.shape[-1] != 3 or pos.dtype.kind not in "fiu":
@@ -250,6 +256,30 @@ def _read_obstacle(g, path, name, where) -> Obstacle:
         faces=_read_array(g, "faces", where, "iuf", prefix=path + "/"),
         edges=_read_array(g, "edges", where, "iuf", prefix=path + "/"),
     )
+
+
+def _read_half_space(g, path, name, where) -> Obstacle:
+    normal = _read_array(g, "normal", where, "iuf", prefix=path + "/")
+    if "offset" in g:
+        ds = _dataset(g, "offset", where, prefix=path + "/")
+        if ds is None:
+            raise FormatError(f"half-space offset must be a dataset or an attribute in {where}:/{path}/offset")
+        offset = ds[()]
+        if np.asarray(offset).dtype.kind not in "iuf":
+            raise FormatError(f"half-space offset must be a number; got {np.asarray(offset).dtype} "
+                              f"in {where}:/{path}/offset")
+    elif "offset" in g.attrs:
+        offset = decode_attr(g.attrs["offset"])
+    else:
+        raise FormatError(f"half-space obstacle {name!r} needs an offset (attribute or dataset) next to its "
+                          f"normal in {where}:/{path}/offset")
+    if np.size(offset) != 1:
+        raise FormatError(f"half-space offset must be a scalar; got shape {np.shape(offset)} in {where}:/{path}/offset")
+    try:
+        offset = float(np.asarray(offset).reshape(()))
+    except (TypeError, ValueError):
+        raise FormatError(f"half-space offset must be a number; got {offset!r} in {where}:/{path}/offset") from None
+    return Obstacle(name=name, normal=np.asarray(normal), offset=offset)
 
 
 def read_hdf5(path: str) -> Sequence:
@@ -283,12 +313,17 @@ def write_to_h5(f: h5py.File, seq: Sequence) -> None:
     write_attrs(f, {k: v for k, v in seq.attrs.items() if k not in RESERVED_ATTRS})
     f.attrs["penfree_format"] = FORMAT_VERSION
     f.attrs["thickness"] = float(seq.thickness or 0.0)
+    f.attrs["contact_radius"] = float(seq.contact_radius or 0.0)
     if seq.dt is not None:
         f.attrs["dt"] = float(seq.dt)
     if seq.source is not None:
         f.attrs["source"] = str(seq.source)
     for ob in seq.obstacles:
         g = f.create_group(f"obstacles/{ob.name}")
+        if ob.is_half_space:
+            g.create_dataset("normal", data=np.asarray(ob.normal, dtype=np.float64))
+            g.attrs["offset"] = float(ob.offset)
+            continue
         if np.ndim(ob.positions) == 3:
             write_positions(g, "positions", ob.positions)
         else:

@@ -1,8 +1,10 @@
 """NumPy ``.npz`` archives: ``positions`` (or ``vertices_seq``) ``(T, N, 3)`` plus topology.
 
 Optional arrays: ``faces``, ``edges``, ``weights``, ``components``, 0-d
-``thickness`` / ``contact_radius``, ``dt``, ``source``, ``attrs_json`` (other attributes as one JSON string), and obstacles as
-``obstacles/<name>/positions`` with ``obstacles/<name>/faces`` or ``.../edges``.
+``thickness`` (hard minimum separation), ``contact_radius`` (the simulator's contact
+distance), ``dt``, ``source``, ``attrs_json`` (other attributes as one JSON string), and
+obstacles as ``obstacles/<name>/positions`` (or ``vertices``) with ``.../faces`` or
+``.../edges``, or half-spaces ``obstacles/<name>/normal`` (3,) with ``.../offset``.
 Archives are read with ``allow_pickle=False``.
 
 >>> import numpy as np
@@ -20,7 +22,7 @@ import zipfile
 import numpy as np
 
 from ..errors import FormatError, InputError
-from ..sequence import Obstacle, Sequence
+from ..sequence import OBSTACLE_FORMS, Obstacle, Sequence
 from ._registry import register
 from .atomic import atomic_file
 from ._json import json_default
@@ -68,16 +70,14 @@ def _read(z, path) -> Sequence:
                 raise InputError(f"{key} must be finite; frame {s} holds NaN or Inf in {path}:/{key}")
     elif pos.ndim != 3 or pos.shape[-1] != 3:
         raise InputError(f"{key} must be (T, N, 3); got {pos.shape} in {path}:/{key}")
-    thickness = _scalar(z, "thickness", path)
-    if thickness is None:
-        thickness = _scalar(z, "contact_radius", path)
     seq = Sequence(
         positions=pos,
         edges=z["edges"] if "edges" in z.files else None,
         faces=z["faces"] if "faces" in z.files else None,
         weights=z["weights"] if "weights" in z.files else None,
         components=z["components"] if "components" in z.files else None,
-        thickness=thickness or 0.0,
+        thickness=_scalar(z, "thickness", path) or 0.0,
+        contact_radius=_scalar(z, "contact_radius", path) or 0.0,
         dt=_scalar(z, "dt", path),
         source=str(z["source"]) if "source" in z.files else None,
         origin=path,
@@ -89,21 +89,31 @@ def _read(z, path) -> Sequence:
             seq.attrs = None
         if not isinstance(seq.attrs, dict):
             raise FormatError(f"attrs_json must be a JSON object in {path}:/attrs_json")
-    names = sorted({k.split("/")[1] for k in z.files if k.startswith("obstacles/") and k.count("/") == 2})
+    names = sorted({k.split("/")[1] for k in z.files if k.startswith("obstacles/")})
     for name in names:
-        p = f"obstacles/{name}/"
-        if p + "positions" not in z.files:
-            raise FormatError(f"obstacle needs positions (T, M, 3) or (M, 3) in {path}:/{p}positions")
-        seq.obstacles.append(Obstacle(
-            name, z[p + "positions"],
-            faces=z[p + "faces"] if p + "faces" in z.files else None,
-            edges=z[p + "edges"] if p + "edges" in z.files else None,
-        ))
+        seq.obstacles.append(_read_obstacle(z, name, path))
     return seq
 
 
+def _read_obstacle(z, name, path) -> Obstacle:
+    p = f"obstacles/{name}/"
+    keys = {k[len(p):] for k in z.files if k.startswith(p)}
+    mesh = [k for k in ("positions", "vertices") if k in keys]
+    if "normal" in keys and not mesh and "offset" in keys:
+        return Obstacle(name, normal=z[p + "normal"], offset=_scalar(z, p + "offset", path))
+    if len(mesh) != 1 or not ({"faces", "edges"} & keys):
+        raise FormatError(f"obstacle {name!r} has an unknown form (arrays {sorted(keys) or 'none'}); "
+                          f"expected {OBSTACLE_FORMS} in {path}:/{p[:-1]}")
+    return Obstacle(
+        name, z[p + mesh[0]],
+        faces=z[p + "faces"] if p + "faces" in z.files else None,
+        edges=z[p + "edges"] if p + "edges" in z.files else None,
+    )
+
+
 def write_npz(path: str, seq: Sequence, overwrite: bool = False) -> None:
-    arrays = {"positions": seq.positions, "thickness": np.float64(seq.thickness or 0.0)}
+    arrays = {"positions": seq.positions, "thickness": np.float64(seq.thickness or 0.0),
+              "contact_radius": np.float64(seq.contact_radius or 0.0)}
     for name in ("edges", "faces", "weights", "components"):
         if getattr(seq, name) is not None:
             arrays[name] = getattr(seq, name)
@@ -114,6 +124,10 @@ def write_npz(path: str, seq: Sequence, overwrite: bool = False) -> None:
     if seq.attrs:
         arrays["attrs_json"] = np.str_(json.dumps(seq.attrs, default=json_default))
     for ob in seq.obstacles:
+        if ob.is_half_space:
+            arrays[f"obstacles/{ob.name}/normal"] = np.asarray(ob.normal, dtype=np.float64)
+            arrays[f"obstacles/{ob.name}/offset"] = np.float64(ob.offset)
+            continue
         arrays[f"obstacles/{ob.name}/positions"] = ob.positions
         for name in ("faces", "edges"):
             if getattr(ob, name) is not None and len(getattr(ob, name)):

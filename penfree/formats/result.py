@@ -24,7 +24,7 @@ stored as ``"json:..."`` strings and decoded on read); ``penfree_format`` and
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import h5py
 import numpy as np
@@ -248,8 +248,12 @@ def deformed_sequence(result: DeformResult) -> Sequence:
     if deformed.shape[0] < 2:
         raise InputError(f"--deformed needs at least 2 steps to make a sequence; got {deformed.shape[0]} "
                          f"in {result.origin}:/steps/deformed")
+    frames = np.asarray(result.steps["frame"], dtype=np.int64)
+    obstacles = [ob if ob.is_half_space or np.ndim(ob.positions) == 2
+                 else replace(ob, positions=ob.positions[frames]) for ob in seq.obstacles]
     out = Sequence(positions=deformed, edges=seq.edges, faces=seq.faces, weights=seq.weights,
-                   components=seq.components, thickness=seq.thickness, dt=seq.dt,
+                   components=seq.components, thickness=seq.thickness, contact_radius=seq.contact_radius,
+                   dt=seq.dt, obstacles=obstacles,
                    source=f"deformed states of {result.origin}", origin=f"{result.origin}:/steps/deformed",
                    attrs={"deformed_from_frames": ",".join(str(int(f)) for f in result.steps["frame"])})
     return out.validate()

@@ -6,8 +6,8 @@ itself. ``out.xdmf`` holds a Temporal collection ``penfree`` of Uniform grids,
 one per frame, each with its ``<Time>``, its own Geometry DataItem and the
 same Topology DataItem; the arrays live in ``out.xdmf.h5`` beside it (not
 ``out.h5``, which is often the very input being converted). Obstacles are
-further Temporal collections named ``obstacle:<name>``; thickness, dt,
-source and other attributes sit in an ``<Information Name="penfree">`` JSON
+further Temporal collections named ``obstacle:<name>``; half-space obstacles
+(no grid to draw), thickness, contact radius, dt, source and other attributes sit in an ``<Information Name="penfree">`` JSON
 element that viewers ignore.
 
 The reader takes these files and meshio TimeSeriesWriter files (whose moving
@@ -104,7 +104,10 @@ def write_xdmf(path: str, seq: Sequence, overwrite: bool = False) -> None:
     root = ET.Element("Xdmf", Version="2.0")
     domain = ET.SubElement(root, "Domain")
     info = {
-        "penfree_format": 1, "thickness": seq.thickness, "dt": seq.dt, "source": seq.source,
+        "penfree_format": 1, "thickness": seq.thickness, "contact_radius": seq.contact_radius,
+        "dt": seq.dt, "source": seq.source,
+        "half_spaces": [{"name": ob.name, "normal": [float(v) for v in ob.normal], "offset": float(ob.offset)}
+                        for ob in seq.obstacles if ob.is_half_space],
         "attrs": seq.attrs, "extra_edges": bool(seq.faces is not None and len(seq.faces)
                                                 and seq.edges is not None and len(seq.edges)),
     }
@@ -123,6 +126,8 @@ def write_xdmf(path: str, seq: Sequence, overwrite: bool = False) -> None:
             if info["extra_edges"]:
                 f.create_dataset("main/extra_edges", data=np.asarray(seq.edges, dtype=np.int64))
             for k, ob in enumerate(seq.obstacles):
+                if ob.is_half_space:  # no grid: carried in the penfree Information
+                    continue
                 _collection(domain, f, h5name, OBSTACLE_PREFIX + ob.name, f"obstacle_{k}",
                             np.asarray(ob.positions), ob.faces, ob.edges, times)
         ET.indent(root)
@@ -254,7 +259,8 @@ def _read_xdmf(path: str) -> Sequence:
         items = _Items(path, stack)
         positions, edges, faces, grids = _read_collection(main, items, path, "the main collection")
         seq = Sequence(positions=positions, edges=edges, faces=faces, origin=path,
-                       thickness=info.get("thickness") or 0.0, dt=info.get("dt"), source=info.get("source"),
+                       thickness=info.get("thickness") or 0.0, contact_radius=info.get("contact_radius") or 0.0,
+                       dt=info.get("dt"), source=info.get("source"),
                        attrs=info.get("attrs") or {})
         for att in grids[0].findall("Attribute"):
             if att.get("Name") in ("weights", "components"):
@@ -270,6 +276,11 @@ def _read_xdmf(path: str) -> Sequence:
                 continue
             pos, e, f, _ = _read_collection(c, items, path, f"collection {name}")
             seq.obstacles.append(Obstacle(name[len(OBSTACLE_PREFIX):], pos, faces=f, edges=e))
+        for hs in info.get("half_spaces") or []:
+            if not isinstance(hs, dict) or not {"name", "normal", "offset"} <= set(hs):
+                raise FormatError(f"penfree Information half_spaces entries must be {{name, normal, offset}}; "
+                                  f"got {hs!r} in {path}")
+            seq.obstacles.append(Obstacle(str(hs["name"]), normal=np.asarray(hs["normal"]), offset=hs["offset"]))
     return seq
 
 

@@ -37,7 +37,8 @@ report.json key reference (schema ``penfree_report`` = 1; NaN and inf are writte
     rule ``k_1pct`` / ``k_any`` / ``replay_*``:
     ``k_baseline``, ``k_deformed``, ``frame_ms``, ``speedup``);
   - ``certificate``: ``min_margin``, ``all_certified``, ``n_uncertified``,
-    ``uncertified_frames``, ``models`` and ``projections`` ({name: steps});
+    ``uncertified_frames``, ``n_started_dirty`` (steps whose start state already held
+    intersections, kept as they were), ``models`` and ``projections`` ({name: steps});
   - ``worst_steps``: up to 10 rows {``frame``, ``target``, ``k_1pct_baseline``,
     ``k_1pct_deformed``, ``k_any_baseline``, ``k_any_deformed``,
     ``hit_rate_baseline``, ``hit_rate_deformed``, ``k_1pct_gain``};
@@ -116,12 +117,24 @@ def recheck_certificates(steps, groups=None) -> np.ndarray:
     return ok
 
 
-def certificate_summary(steps, rechecked=None) -> dict:
+def _started_dirty(steps, seq, frames):
+    if "start_intersections" in steps:
+        return int(np.count_nonzero(np.asarray(steps["start_intersections"]) > 0))
+    if seq is None:
+        return None
+    from ..core.pipeline.deform import start_state_intersections
+
+    return int(np.count_nonzero(start_state_intersections(seq, np.asarray(frames, dtype=np.int64)) > 0))
+
+
+def certificate_summary(steps, rechecked=None, seq=None) -> dict:
     """Min margin, all certified yes/no, models and projections used, from ``steps/``.
 
     A step counts as certified when its ``certificate_margin`` is finite and at least
     its ``margin_required`` (0 where the file has none) and, when `rechecked` (from
-    `recheck_certificates`) is given, its map passes the certificate again.
+    `recheck_certificates`) is given, its map passes the certificate again. The steps
+    that started dirty come from ``steps/start_intersections``, else are counted on
+    `seq` when given.
     """
     cm = np.asarray(steps.get("certificate_margin", []), dtype=np.float64)
     req = np.asarray(steps.get("margin_required", np.zeros_like(cm)), dtype=np.float64)
@@ -139,6 +152,7 @@ def certificate_summary(steps, rechecked=None) -> dict:
         "all_certified": bool(ok.all()) if ok.size else False,
         "n_uncertified": int(np.count_nonzero(~ok)),
         "uncertified_frames": frames[~ok].tolist(),
+        "n_started_dirty": _started_dirty(steps, seq, frames),
         "models": counts("model"),
         "projections": counts("projection"),
     }
@@ -180,11 +194,12 @@ def build_file_report(path, result, stats, *, ladder=None, cd_share=DEFAULT_CD_S
         "file": os.fspath(path),
         "name": os.path.basename(os.fspath(path)),
         "scene": {"kind": seq.kind, "n_vertices": seq.n_vertices, "n_frames": seq.n_frames,
-                  "n_steps": int(len(stats["frame"])), "thickness": seq.thickness, "dtype": str(seq.dtype)},
+                  "n_steps": int(len(stats["frame"])), "thickness": seq.thickness,
+                  "contact_radius": seq.contact_radius, "dtype": str(seq.dtype)},
         "deform_options": dict(result.attrs),
         "stats_source": stats_source,
         "summary": summarize(stats, steps, cd_share=cd_share, frame_ms=frame_ms),
-        "certificate": certificate_summary(steps, recheck_certificates(steps, result.groups)),
+        "certificate": certificate_summary(steps, recheck_certificates(steps, result.groups), seq),
         "worst_steps": worst_steps(stats),
         "steps": per_step,
         "r_hist": hist,
@@ -275,7 +290,8 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
         projection = opts.get("projection", "auto") if isinstance(opts, dict) else "auto"
         lad = model_ladder(seq.positions, steps["frame"], edges=seq.edges, faces=seq.faces,
                            thickness=seq.thickness, weights=seq.weights, margins=steps.get("margin_required"),
-                           projection=projection, replay=replay, progress=progress)
+                           projection=projection, replay=replay, progress=progress,
+                           contact_radius=seq.contact_radius)
     return build_file_report(path, result, stats, ladder=lad, cd_share=cd_share, frame_ms=frame_ms,
                              stats_source=source)
 
@@ -562,6 +578,8 @@ def _file_md(rep):
     out.append(f"- minimum certificate margin: {_f(cert['min_margin'], '.6g')}\n"
                f"- all steps certified: {'yes' if cert['all_certified'] else 'NO'} "
                f"({cert['n_uncertified']} uncertified)\n"
+               f"- steps that started with pre-existing intersections (kept as they were): "
+               f"{_f(cert.get('n_started_dirty'), 'd')}\n"
                f"- models: {', '.join(f'{k} x{v}' for k, v in cert['models'].items()) or 'n/a'}\n"
                f"- projections: {', '.join(f'{k} x{v}' for k, v in cert['projections'].items()) or 'n/a'}\n")
     ws = rep["worst_steps"]

@@ -416,8 +416,9 @@ def test_f13_group_in_place_of_obstacle_positions_is_named(cli, tmp_path):
     src = _write(tmp_path / "in.h5", grid(n=4, T=3))
     with h5py.File(src, "r+") as f:
         f.create_group("obstacles/floor/positions")
+        f["obstacles/floor/faces"] = np.array([[0, 1, 2]])
     r = cli("info", src, expect=2)
-    assert "obstacles/floor/positions" in r.stderr
+    assert "obstacles/floor/positions" in r.stderr and "group" in r.stderr
 
 
 # ------------------------------------------------------------ 14. option errors

@@ -23,7 +23,8 @@ def test_triangle_scene_values():
     assert d["motion"]["per_step_max"] == [1.0, 3.0] and d["motion"]["per_step_rms"] == [1.0, 3.0]
     assert d["motion"]["max"] == {"min": 1.0, "median": 2.0, "max": 3.0}
     assert (d["thickness"], d["dt"]) == (pytest.approx(0.1), 0.5)
-    assert d["obstacles"] == [{"name": "floor", "vertices": 3, "faces": 1, "edges": 0, "static": True}]
+    assert d["obstacles"] == [{"name": "floor", "half_space": False, "vertices": 3, "faces": 1, "edges": 0,
+                               "static": True}]
 
 
 def test_motion_against_brute_force():

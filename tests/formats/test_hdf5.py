@@ -53,7 +53,7 @@ def test_round_trip(tmp_path, rng, dtype, kind):
 
 
 def test_reads_a_minimal_foreign_file(tmp_path, rng):
-    """Written by someone else: int32 topology, float32, no attrs, contact_radius alias, odd extension."""
+    """Written by someone else: int32 topology, float32, a contact_radius (not a thickness), odd extension."""
     path = str(tmp_path / "sim.dat")
     pos = rng.random((3, 4, 3)).astype(np.float32)
     with h5py.File(path, "w") as f:
@@ -63,7 +63,7 @@ def test_reads_a_minimal_foreign_file(tmp_path, rng):
         f.attrs["note"] = np.bytes_(b"bytes attr")
     seq = read_sequence(path)  # recognised by content, not by name
     assert seq.positions.dtype == np.float32 and seq.edges.dtype == np.int64
-    assert seq.thickness == 0.25 and seq.dt is None and seq.kind == "segments"
+    assert seq.thickness == 0.0 and seq.contact_radius == 0.25 and seq.dt is None and seq.kind == "segments"
     assert seq.attrs == {"note": "bytes attr"}
 
 

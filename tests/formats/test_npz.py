@@ -39,7 +39,7 @@ def test_vertices_seq_key(tmp_path, rng):
     np.savez(p, vertices_seq=pos, faces=np.array([[0, 1, 2]], dtype=np.int32), contact_radius=np.float64(0.1))
     seq = read_sequence(p)
     np.testing.assert_array_equal(seq.positions, pos)
-    assert seq.kind == "triangles" and seq.thickness == 0.1
+    assert seq.kind == "triangles" and seq.thickness == 0.0 and seq.contact_radius == 0.1
 
 
 @pytest.mark.parametrize("build,exc,expect", [

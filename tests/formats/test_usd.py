@@ -403,8 +403,6 @@ def test_plane_becomes_half_space(tmp_path):
         read_usd(str(path))
 
 
-@pytest.mark.xfail(strict=True, reason="needs issue 10 (i10): half-space obstacles in Sequence.validate, "
-                                        "HDF5 and verify; remove this marker once that is merged")
 def test_plane_collider_used_by_verify(tmp_path):
     """A sheet sinking through a floor plane: verify names the floor; above it, verify passes."""
     for name, zs, code in (("above", [1.0, 0.9, 0.8], 0), ("through", [1.0, 0.9, -0.1], 1)):

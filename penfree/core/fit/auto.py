@@ -316,9 +316,12 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
     x_prev, x : (N, 3) float
         Frames s - 1 and s; the target is ``x_pred = 2 x - x_prev``.
     d_start : (N,) float64
-        Per-vertex separations at `x`, capped at `r_q` (`per_vertex_separation`).
+        Per-vertex separations at `x`, capped at `r_q` (`per_vertex_separation`, and
+        `obstacle_separation` when the scene has obstacles: a vertex resting on the
+        floor then gets a small predicted bound. Obstacles do not move with the map,
+        so for their terms the prediction is an estimate, not a lower bound).
     r_q : float
-        The step's query radius (``thickness + max_v |x_pred_v - x_v|``).
+        The step's query radius (``contact_radius + max_v |x_pred_v - x_v|``).
     thickness, gamma, weights, margin, projection
         As in `fit_step` and `trust_region_bounds`.
     out : (N, 3) array or None
@@ -341,6 +344,20 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
     query.
     """
     t0 = time.perf_counter()
+    x, x_prev, m, cands = ranked_candidates(x_prev, x, d_start, r_q=r_q, thickness=thickness, gamma=gamma,
+                                            weights=weights, margin=margin, projection=projection)
+    k = rank(cands)[0]
+    result = candidate_result(x_prev, x, m, cands[k], t0, out=out)
+    return result, candidate_table(cands, k)
+
+
+def ranked_candidates(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA, weights=None,
+                      margin=0.0, projection="auto"):
+    """Validated ``x, x_prev``, the moments and every certified candidate with its prediction.
+
+    Parameters as in `select_step`. Order the candidates with `rank`; build the
+    applied one with `candidate_result`.
+    """
     # NaN/Inf positions are caught by fit_moments from its sums (no extra pass here).
     x = _fit.as_positions(x, "x", check_finite=False)
     x_prev = _fit.as_positions(x_prev, "x_prev", x.shape[0], check_finite=False)
@@ -361,14 +378,33 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
             seen[key] = _predict(x_prev, x, cand.D, cand.u, m.c, d_start, float(cand.sigma_lb), r_q, thickness,
                                  gamma, r_buf)
         cand.predicted = dict(seen[key])
-    k = choose(cands)
-    best = cands[k]
-    x_def, stats = _fit.apply_map(x, best.D, best.u, m.c, out=out, x_prev=x_prev)
-    result = StepResult(
-        A=best.A.copy(), b=best.u - best.D @ m.c, x_def=x_def, D=best.D, u=best.u, c=m.c.copy(),
-        model=best.name, projection=best.projection, certificate_margin=best.certificate_margin,
-        rank=best.rank, **stats, time_fit_s=time.perf_counter() - t0, model_fitted="auto",
+    return x, x_prev, m, cands
+
+
+def rank(cands) -> list:
+    """Indices of `cands` in order of preference: `choose` applied to what is left, repeatedly.
+
+    A candidate that fails a later safety check (obstacles, near pairs) gives way to
+    the next one; candidate 0 (doing nothing) always passes it.
+    """
+    rest = list(range(len(cands)))
+    order = []
+    while rest:
+        order.append(rest.pop(choose([cands[i] for i in rest])))
+    return order
+
+
+def candidate_result(x_prev, x, m, cand, t0, out=None) -> StepResult:
+    """The `StepResult` of applying candidate `cand` (x_def written once, into `out` if given)."""
+    x_def, stats = _fit.apply_map(x, cand.D, cand.u, m.c, out=out, x_prev=x_prev)
+    return StepResult(
+        A=cand.A.copy(), b=cand.u - cand.D @ m.c, x_def=x_def, D=cand.D, u=cand.u, c=m.c.copy(),
+        model=cand.name, projection=cand.projection, certificate_margin=cand.certificate_margin,
+        rank=cand.rank, **stats, time_fit_s=time.perf_counter() - t0, model_fitted="auto",
     )
-    table = [dict(name=c.name, chosen=i == k, sigma_lb=c.sigma_lb, certificate_margin=c.certificate_margin,
-                  **c.predicted) for i, c in enumerate(cands)]
-    return result, table
+
+
+def candidate_table(cands, k) -> list:
+    """Per candidate: name, chosen (index `k`), sigma_lb, certificate_margin and the predictions."""
+    return [dict(name=c.name, chosen=i == k, sigma_lb=c.sigma_lb, certificate_margin=c.certificate_margin,
+                 **c.predicted) for i, c in enumerate(cands)]

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...constants import MARGIN_GAP_RADIUS_FACTOR
 from ...errors import InputError
+from ..verify.gate import margin_rule
 from ..fit.step import fit_step
 
 #: verify_step lists violating pairs up to this many per round (all of them in practice).
@@ -122,10 +122,9 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
     weights, model, projection
         As in `fit_step`, per group. `model` is a model of the ladder.
     margin : float or None
-        Certificate margin of every group's map. None: ``thickness / d0`` (d0 the
-        smallest start gap, searched within `MARGIN_GAP_RADIUS_FACTOR` thicknesses),
-        0 without thickness; the margin is what keeps gaps inside a group (and of the
-        merged global map) above the thickness.
+        Certificate margin of every group's map. None: the one margin rule
+        (`gate.margin_rule`); with a thickness the pairs closer than the rule covers
+        are checked by the caller's gate (`gate.StepGate`).
     out : (N, 3) array or None
 
     Returns
@@ -135,9 +134,10 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
     Notes
     -----
     Within a group the exact certificate of its map makes every path safe (SPEC
-    section 5); between groups the conservative CCD does. A start state that already
-    violates the thickness, or a violation the CCD cannot attribute to two different
-    groups (a near-miss flagged inside one certified group), merges everything into one
+    section 5); between groups the conservative CCD does, in the deform-result reading
+    (pairs resting inside the thickness must stay disjoint, pairs touching at the start
+    are left as they were). A violation the CCD cannot attribute to two different
+    groups (a near-miss flagged inside one certified group) merges everything into one
     global map, which is certified.
     """
     t0 = time.perf_counter()
@@ -151,7 +151,7 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
         raise InputError(f"component labels must be ({n},); got {labels.shape}")
     C = int(labels.max()) + 1 if n else 0
     if margin is None:
-        margin = _thickness_margin(x, edges, faces, thickness)
+        margin = margin_rule(thickness)
     w = None if weights is None else np.asarray(weights, dtype=np.float64)
     faces_arr = None if faces is None else np.asarray(faces, dtype=np.int64)
     group = np.arange(C)  # group of each component: its smallest member
@@ -175,7 +175,8 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
             A[list(key)], b[list(key)] = r.A, r.b
         if len(fitted) == 1:
             break
-        res = verify_step(x, x_def, edges=edges, faces=faces, thickness=thickness, max_pairs=_ALL_PAIRS)
+        res = verify_step(x, x_def, edges=edges, faces=faces, thickness=thickness, max_pairs=_ALL_PAIRS,
+                          start_intersections=False, pre_existing=True)
         if res.ok:
             break
         before = group.copy()
@@ -195,16 +196,3 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
         rank=int(max(r.rank for r in fitted.values())), rounds=rounds, models=models,
         time_fit_s=time.perf_counter() - t0,
     )
-
-
-def _thickness_margin(x, edges, faces, thickness):
-    if thickness <= 0:
-        return 0.0
-    from ..trust.bounds import min_separation
-
-    radius = MARGIN_GAP_RADIUS_FACTOR * thickness
-    d0 = float(min_separation(x, E=edges, F=faces, radius=radius))
-    if d0 <= thickness:
-        raise InputError(f"start state already within the thickness ({d0:g} <= {thickness:g}): "
-                         "no shape change can be certified")
-    return thickness / d0

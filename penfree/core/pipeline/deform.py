@@ -1,9 +1,12 @@
 """The sequence driver: runs the per-step stages over a whole recording.
 
-`deform_sequence` wires fit, projection and certificate (through `fit_step`), the
-start-gap query that turns a thickness into a certificate margin, and the residual
-summaries against the simulator's next frame. It returns plain arrays in the layout of
-SPEC section 8; writing them is the formats layer's job.
+`deform_sequence` is a short loop: per step, a strategy (`strategy.SingleMap`,
+`strategy.Auto`, `strategy.PerComponent`) proposes maps, preferred first (and the preferred
+one's shortened steps before doing nothing, `strategy.with_shortened`); the first one
+that passes the shared safety gate (`gate.StepGate`: the exact certificate with the
+one margin rule, the near-pair CCD when a thickness applies, the obstacles) is
+applied. Doing nothing ends every chain and always passes. It returns plain arrays in
+the layout of SPEC section 8; writing them is the formats layer's job.
 """
 
 from __future__ import annotations
@@ -13,11 +16,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...constants import MARGIN_GAP_RADIUS_FACTOR
 from ...errors import CertificateError, InputError
 from ..fit.certificate import certify_map
-from ..trust.stats import query_radius, residual_summary
+from ..verify.gate import StepGate, margin_rule
+from ..trust.stats import residual_summary
 from ..fit.step import fit_step
+from .strategy import make_strategy, step_input, with_shortened
 
 
 @dataclass
@@ -45,64 +49,33 @@ def step_indices(n_frames: int, frames=None) -> np.ndarray:
     return idx.astype(np.int64)
 
 
-def step_margin(x, seq, thickness, margin, d0=None):
-    """Certificate margin of one step: the explicit `margin`, else thickness / d0.
-
-    With thickness `h > 0` every gap must stay >= h along the path. Gaps shrink by at
-    most sigma_min(M(t)), so sigma_min >= h / d0 (d0 the smallest start gap between
-    non-adjacent primitives) suffices. d0 is searched within a radius of
-    `MARGIN_GAP_RADIUS_FACTOR * h`; no pair inside it means d0 >= that radius, and the
-    margin h / radius is still sufficient (only more conservative than needed).
-
-    `d0` may be given (any lower bound of the smallest gap, e.g. the minimum of
-    per-vertex separations capped at a radius >= thickness).
-
-    Returns ``(margin, d0)``; margin is ``None`` when the start state already violates
-    the thickness (d0 <= h): no shape change can be certified then, only a translation.
-    """
-    if margin is not None:
-        return float(margin), math.nan
-    if thickness <= 0 or seq.kind == "points":
-        return 0.0, math.nan
-    if d0 is None:
-        from ..trust.bounds import min_separation
-
-        radius = MARGIN_GAP_RADIUS_FACTOR * thickness
-        d0 = float(min_separation(x, E=seq.edges, F=seq.faces, radius=radius))
-    if d0 <= thickness:
-        return None, d0
-    return thickness / d0, d0
+def required_margin(thickness, margin=None) -> float:
+    """The margin every map of a step must be certified with: the rule's, or a larger explicit one."""
+    rule = margin_rule(thickness)
+    return rule if margin is None else max(rule, float(margin))
 
 
-def deform_sequence(
-    seq,
-    *,
-    model="affine",
-    projection="auto",
-    margin=None,
-    thickness=None,
-    weights=None,
-    frames=None,
-    per_vertex=False,
-    progress=None,
-) -> DeformOutput:
-    """Fit, project and certify one affine map per step of `seq`.
+def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thickness=None, contact_radius=None,
+                    weights=None, frames=None, per_vertex=False, progress=None, check_start=False) -> DeformOutput:
+    """Fit, certify, check and apply one map per step of `seq`.
 
     Parameters
     ----------
     seq : Sequence
         Validated input.
     model : str
-        A model of `fit_step`, or ``"auto"`` (collision-aware choice,
-        `selection.select_step`; needs topology, else `fit_step`'s residual-based auto)
-        or ``"per-component"`` (`components.per_component_step`).
+        A model of `fit_step`, or ``"auto"`` (collision-aware choice, `selection`;
+        needs topology, else `fit_step`'s residual-based auto) or ``"per-component"``.
     projection : str
         As in `fit_step`.
     margin : float or None
-        Required lower bound of sigma_min(M(t)). None: thickness / d0 per step when a
-        thickness applies, else 0.
+        Required lower bound of sigma_min(M(t)) beyond the one margin rule
+        (`gate.margin_rule`: 0 at thickness 0, else 0.1); None: the rule's.
     thickness : float or None
-        Contact distance; None takes the sequence's.
+        Hard minimum separation; None takes the sequence's.
+    contact_radius : float or None
+        The simulator's contact distance (sizes the query radius of `auto`'s
+        predictor); None takes the sequence's.
     weights : (N,) float64 or None
         Fit weights; None takes the sequence's (or uniform).
     frames : (start, stop) or None
@@ -111,35 +84,69 @@ def deform_sequence(
         Also keep per-vertex residual norms (S, N) float32.
     progress : callable or None
         Called once per finished step.
+    check_start : bool
+        Also count each start state's pre-existing intersections
+        (``start_intersections``, `start_state_intersections`); costs about a static
+        verification per step.
 
     Returns
     -------
     DeformOutput
         ``steps`` holds frame, A, b, deformed, model, projection, certificate_margin,
-        margin_required, start_gap, rank, residual_* / baseline_*, time_fit_s.
+        margin_required, rank, residual_* / baseline_*, time_fit_s (and
+        start_intersections with `check_start`).
 
     Notes
     -----
-    Every applied A passes the exact certificate (`certify`) with the step's margin;
-    a step that fails it raises CertificateError instead of being written.
+    Every applied map passes `gate.StepGate` (the exact certificate through
+    `certify_map` among its checks) and is certified again before it is recorded; a
+    step that would not be raises CertificateError instead of being written.
     """
     thickness = seq.thickness if thickness is None else float(thickness)
+    contact_radius = seq.contact_radius if contact_radius is None else float(contact_radius)
     weights = seq.weights if weights is None else weights
-    pos = seq.positions
-    T, N = pos.shape[0], pos.shape[1]
-    S_idx = step_indices(T, frames)
-    S = S_idx.size
+    S_idx = step_indices(seq.n_frames, frames)
+    m = required_margin(thickness, margin)
+    strategy = make_strategy(model, seq, projection, thickness, S_idx.size)
+    out = _allocate(seq, S_idx, per_vertex)
+    if check_start:
+        out["start_intersections"] = start_state_intersections(seq, S_idx)
+    _warm_up(seq, S_idx[0], model, projection)
+    for k, s in enumerate(S_idx):
+        gate = StepGate(seq.positions[s], edges=seq.edges, faces=seq.faces, thickness=thickness,
+                        obstacles=seq.obstacles, frame=s)
+        step = step_input(seq, s, m, gate, weights, contact_radius)
+        outcome = next(o for o in with_shortened(strategy.outcomes(step), step) if gate.passes(o.x_def, o.maps))
+        for A_applied, _, _ in outcome.maps:  # belt and braces: every applied map through the one gate
+            if not certify_map(A_applied, m):
+                raise CertificateError(f"step {s}: the applied map failed the exact certificate (margin {m})")
+        strategy.record(k, outcome)
+        _record(out, k, step, outcome, seq, per_vertex)
+        if progress is not None:
+            progress()
+    out["model"] = out["model"].astype(str)
+    out["projection"] = out["projection"].astype(str)
+    options = {
+        "model": model, "projection": projection, "margin": m, "thickness": thickness,
+        "contact_radius": contact_radius,
+        "frames": "all" if frames is None else f"{frames[0] if frames[0] is not None else ''}:"
+                                               f"{frames[1] if frames[1] is not None else ''}",
+        "per_vertex": bool(per_vertex),
+    }
+    return DeformOutput(steps=out, options=options, groups=strategy.groups())
 
+
+def _allocate(seq, S_idx, per_vertex) -> dict:
+    S, N = S_idx.size, seq.n_vertices
     out = {
         "frame": S_idx,
         "A": np.empty((S, 3, 3)),
         "b": np.empty((S, 3)),
-        "deformed": np.empty((S, N, 3), dtype=pos.dtype),
+        "deformed": np.empty((S, N, 3), dtype=seq.positions.dtype),
         "model": np.empty(S, dtype=object),
         "projection": np.empty(S, dtype=object),
         "certificate_margin": np.empty(S),
         "margin_required": np.empty(S),
-        "start_gap": np.full(S, np.nan),
         "rank": np.empty(S, dtype=np.int64),
         "time_fit_s": np.empty(S),
     }
@@ -150,148 +157,47 @@ def deform_sequence(
     if per_vertex:
         out["residual_pred_per_vertex"] = np.empty((S, N), dtype=np.float32)
         out["residual_next_per_vertex"] = np.full((S, N), np.nan, dtype=np.float32)
-
-    per_component = model == "per-component"
-    if per_component:
-        from .components import component_labels, per_component_step
-
-        labels = component_labels(N, seq.edges, seq.faces, seq.components)
-        C = int(labels.max()) + 1
-        # NaN / -1 for steps that could not use per-component maps (start within thickness)
-        comp = {"labels": labels, "A": np.full((S, C, 3, 3), np.nan), "b": np.full((S, C, 3), np.nan),
-                "group": np.full((S, C), -1, dtype=np.int64), "rounds": np.zeros(S, dtype=np.int64)}
-    select = model == "auto" and seq.kind != "points"
-    if select:
-        from ..fit.auto import select_step
-        from ..trust.bounds import scene_arrays, per_vertex_separation
-
-        _, E, F = scene_arrays(pos[0], seq.edges, seq.faces)
-        table_rows = [None] * S
-
-    # Untimed warm-up on a few vertices: JIT compilation (first run, or a stale cache)
-    # must not count as fit time.
-    fit_step(pos[S_idx[0] - 1][:4], pos[S_idx[0]][:4], model="affine" if model in ("auto", "per-component")
-             else model, projection=projection)
-
-    for k, s in enumerate(S_idx):
-        x_prev, x = pos[s - 1], pos[s]
-        x64 = np.asarray(x, dtype=np.float64)
-        x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
-        if select:
-            r_q = query_radius(x64, x_pred, thickness)
-            d_start = per_vertex_separation(x64, E, F, r_q)
-            m, d0 = step_margin(x, seq, thickness, margin, d0=float(d_start.min()) if len(d_start) else r_q)
-        else:
-            m, d0 = step_margin(x, seq, thickness, margin)
-        if m is None:  # start state within the thickness: only a translation is safe
-            r = _applied(fit_step(x_prev, x, weights=weights, model="translation", projection=projection))
-        elif per_component:
-            cs = per_component_step(x_prev, x, labels, edges=seq.edges, faces=seq.faces, thickness=thickness,
-                                    weights=weights, margin=m, projection=projection)
-            comp["A"][k], comp["b"][k], comp["group"][k], comp["rounds"][k] = cs.A, cs.b, cs.group, cs.rounds
-            r = _component_applied(cs)
-        elif select:
-            res, table_rows[k] = select_step(x_prev, x, d_start, r_q=r_q, thickness=thickness, weights=weights,
-                                             margin=m, projection=projection)
-            r = _applied(res)
-        else:
-            r = _applied(fit_step(x_prev, x, weights=weights, model=model, projection=projection, margin=m))
-        for A_applied in r.maps:  # belt and braces: every applied map through the one gate
-            if not certify_map(A_applied, m or 0.0):
-                raise CertificateError(f"step {s}: the applied map failed the exact certificate (margin {m})")
-        out["A"][k], out["b"][k] = r.A, r.b
-        out["deformed"][k] = r.x_def
-        out["model"][k], out["projection"][k] = r.model, r.projection
-        out["certificate_margin"][k] = r.certificate_margin
-        out["margin_required"][k] = 1.0 if m is None else m
-        out["start_gap"][k] = d0
-        out["rank"][k] = r.rank
-        out["time_fit_s"][k] = r.time_fit_s
-
-        targets = {"pred": x_pred}
-        if s + 1 < T:
-            targets["next"] = pos[s + 1]
-        for tgt, y in targets.items():
-            out[f"residual_{tgt}_rms"][k], out[f"residual_{tgt}_max"][k] = residual_summary(r.x_def, y)
-            out[f"baseline_{tgt}_rms"][k], out[f"baseline_{tgt}_max"][k] = residual_summary(x64, y)
-            if per_vertex:
-                out[f"residual_{tgt}_per_vertex"][k] = np.linalg.norm(
-                    np.asarray(r.x_def, dtype=np.float64) - np.asarray(y, dtype=np.float64), axis=1)
-        if progress is not None:
-            progress()
-
-    groups = {"selection": selection_arrays(table_rows)} if select else {}
-    if per_component:
-        groups["component_maps"] = comp
-    out["model"] = out["model"].astype(str)
-    out["projection"] = out["projection"].astype(str)
-    options = {
-        "model": model,
-        "projection": projection,
-        "margin": "thickness/d0" if margin is None and thickness > 0 else (0.0 if margin is None else float(margin)),
-        "thickness": thickness,
-        "frames": "all" if frames is None else f"{frames[0] if frames[0] is not None else ''}:{frames[1] if frames[1] is not None else ''}",
-        "per_vertex": bool(per_vertex),
-    }
-    return DeformOutput(steps=out, options=options, groups=groups)
+    return out
 
 
-@dataclass
-class _Applied:
-    """What one step applied, whichever stage produced it."""
+def start_state_intersections(seq, frames) -> np.ndarray:
+    """(S,) int64: pairs already touching or intersecting at each step's start frame.
 
-    A: np.ndarray  # (3, 3); NaN when components moved with different maps
-    b: np.ndarray
-    x_def: np.ndarray
-    model: str
-    projection: str
-    certificate_margin: float
-    rank: int
-    time_fit_s: float
-    maps: list  # every distinct map applied, each to pass the exact certificate
-
-
-def _applied(r) -> _Applied:
-    return _Applied(r.A, r.b, r.x_def, r.model, r.projection, r.certificate_margin, r.rank, r.time_fit_s, [r.A])
-
-
-def _component_applied(cs) -> _Applied:
-    maps = list(np.unique(cs.A, axis=0))
-    if len(np.unique(cs.group)) == 1:  # everything merged: one global map
-        return _Applied(cs.A[0], cs.b[0], cs.x_def, next(iter(cs.models)), "auto", cs.certificate_margin,
-                        cs.rank, cs.time_fit_s, maps)
-    # SPEC: steps/A is *the* map applied; with several there is none (NaN), and
-    # component_maps/A holds each component's map.
-    return _Applied(np.full((3, 3), np.nan), np.full(3, np.nan), cs.x_def, "per-component", "per-component",
-                    cs.certificate_margin, cs.rank, cs.time_fit_s, maps)
-
-
-def selection_arrays(table_rows) -> dict:
-    """Per-step candidate tables of `select_step` as ``selection/...`` arrays.
-
-    ``candidates`` (C,) names in a fixed order; ``predicted_<figure>`` (S, C) with NaN
-    where a candidate was not certified (or the step was not selected); ``chosen`` (S,)
-    the index of the chosen candidate (-1 when the step was not selected).
+    `verify.start_intersections` of ``positions[s]`` for every `s` in `frames` (0 for
+    a scene without topology): the steps "started dirty" that `report` counts.
     """
-    names = []
-    for table in table_rows:
-        for row in table or ():
-            if row["name"] not in names:
-                names.append(row["name"])
-    S, C = len(table_rows), len(names)
-    figures = ("k_1pct", "k_any", "hit_rate", "r_q99", "sigma_lb", "certificate_margin")
-    arrays = {f"predicted_{f}": np.full((S, C), np.nan) for f in figures}
-    chosen = np.full(S, -1, dtype=np.int64)
-    for k, table in enumerate(table_rows):
-        for row in table or ():
-            j = names.index(row["name"])
-            for f in figures:
-                arrays[f"predicted_{f}"][k, j] = row[f]
-            if row["chosen"]:
-                chosen[k] = j
-    arrays["candidates"] = np.array(names, dtype=str)
-    arrays["chosen"] = chosen
-    return arrays
+    from ..verify.path import start_intersections
+
+    if seq.kind == "points":
+        return np.zeros(len(frames), dtype=np.int64)
+    return np.array([start_intersections(seq.positions[s], seq.edges, seq.faces) for s in frames], dtype=np.int64)
+
+
+def _warm_up(seq, s, model, projection):
+    """Untimed fit on a few vertices: JIT compilation (first run, or a stale cache) must
+    not count as fit time."""
+    pos = seq.positions
+    fit_step(pos[s - 1][:4], pos[s][:4], model="affine" if model in ("auto", "per-component") else model,
+             projection=projection)
+
+
+def _record(out, k, step, o, seq, per_vertex):
+    out["A"][k], out["b"][k] = o.A, o.b
+    out["deformed"][k] = o.x_def
+    out["model"][k], out["projection"][k] = o.model, o.projection
+    out["certificate_margin"][k] = o.certificate_margin
+    out["margin_required"][k] = step.margin
+    out["rank"][k] = o.rank
+    out["time_fit_s"][k] = o.time_fit_s
+    targets = {"pred": step.x_pred}
+    if step.s + 1 < seq.n_frames:
+        targets["next"] = seq.positions[step.s + 1]
+    for tgt, y in targets.items():
+        out[f"residual_{tgt}_rms"][k], out[f"residual_{tgt}_max"][k] = residual_summary(o.x_def, y)
+        out[f"baseline_{tgt}_rms"][k], out[f"baseline_{tgt}_max"][k] = residual_summary(step.x64, y)
+        if per_vertex:
+            out[f"residual_{tgt}_per_vertex"][k] = np.linalg.norm(
+                np.asarray(o.x_def, dtype=np.float64) - np.asarray(y, dtype=np.float64), axis=1)
 
 
 def summarize_steps(steps: dict) -> dict:
@@ -308,7 +214,10 @@ def summarize_steps(steps: dict) -> dict:
         "models": {str(m): int(c) for m, c in zip(models, counts)},
         "projections": {str(p): int(c) for p, c in zip(projs, pcounts)},
         "min_certificate_margin": float(np.min(steps["certificate_margin"])),
-        "all_certified": bool(np.all(steps["certificate_margin"] >= steps["margin_required"])),
+        # every written map passes its own certificate: its certified bound >= the margin it needed
+        "all_certified": bool(np.all(np.asarray(steps["certificate_margin"]) >= steps["margin_required"])),
+        "steps_started_dirty": (int(np.count_nonzero(np.asarray(steps["start_intersections"]) > 0))
+                                if "start_intersections" in steps else None),
         "residual_next_rms_ratio": ratio(steps["residual_next_rms"][nxt] ** 2, steps["baseline_next_rms"][nxt] ** 2) ** 0.5
         if nxt.any() else math.nan,
         "residual_pred_rms_ratio": ratio(steps["residual_pred_rms"] ** 2, steps["baseline_pred_rms"] ** 2) ** 0.5,

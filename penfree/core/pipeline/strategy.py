@@ -1,0 +1,261 @@
+"""Per-step strategies of `deform`: each proposes a step's maps, preferred first.
+
+A strategy turns one step (`StepInput`) into a sequence of `Outcome` s, from the map
+it prefers to safer ones; the driver (`pipeline.deform_sequence`) applies the first
+outcome that passes the shared safety gate (`gate.StepGate`). Every chain ends with
+doing nothing (`nothing`), which always passes: the last resort.
+
+- `SingleMap`: one fitted model, then the simpler models of the ladder
+  (affine -> similarity -> rigid -> translation), then nothing;
+- `Auto`: the certified candidates of `selection` in the order of their predicted
+  CD passes (`selection.rank`), the trust-region predictor seeing the obstacles;
+- `PerComponent`: one map per object (`components.per_component_step`), then the
+  `SingleMap` chain of the affine model.
+
+`with_shortened` puts, just before doing nothing, the strategy's first (preferred)
+map with its step shortened (`shortened`): ``x + alpha (x_def - x)``, whose straight
+path is the first `alpha` of the preferred map's path. A vertex resting on the floor
+that every full step would push through may allow a part of one.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...constants import MODELS, SHORTEN_LEVELS
+from ..fit.certificate import certified_margin
+from ..verify.gate import StepGate
+from ..trust.stats import contact_distance, query_radius
+from ..fit.step import fit_step
+
+_I3 = np.eye(3)
+
+
+@dataclass
+class StepInput:
+    """What a strategy sees of step `s`: frames, target, query radius, gate."""
+
+    s: int
+    x_prev: np.ndarray
+    x: np.ndarray
+    x64: np.ndarray
+    x_pred: np.ndarray
+    r_q: float
+    margin: float
+    gate: StepGate
+    weights: np.ndarray = None
+
+
+@dataclass
+class Outcome:
+    """One proposed map of a step (or several, per component) and how it was made."""
+
+    A: np.ndarray  # (3, 3); NaN when components moved with different maps
+    b: np.ndarray
+    x_def: np.ndarray
+    model: str
+    projection: str
+    certificate_margin: float
+    rank: int
+    time_fit_s: float
+    maps: list  # (A, b, rows or None): every distinct map applied, for the gate
+    extra: dict = field(default_factory=dict)
+
+
+def from_step_result(r) -> Outcome:
+    return Outcome(r.A, r.b, r.x_def, r.model, r.projection, r.certificate_margin, r.rank, r.time_fit_s,
+                   [(r.A, r.b, None)])
+
+
+def nothing(step: StepInput) -> Outcome:
+    """Doing nothing: ``x_def = x`` bit for bit (always safe)."""
+    return Outcome(_I3.copy(), np.zeros(3), np.array(step.x, copy=True), "none", "none",
+                   certified_margin(_I3, step.margin), 0, 0.0, [(_I3, np.zeros(3), None)])
+
+
+def shortened(o: Outcome, step: StepInput, alpha: float) -> Outcome:
+    """`o` with its step shortened to ``alpha``: map ``I + alpha (A - I)``, ``alpha b``.
+
+    Only for a single finite map. ``M_alpha(t) = M(alpha t)``, so the shortened path
+    is a prefix of `o`'s: it passes every certificate `o`'s map passes.
+    """
+    A = np.eye(3) + alpha * (np.asarray(o.A, np.float64) - np.eye(3))
+    b = alpha * np.asarray(o.b, np.float64)
+    x_def = (step.x64 + alpha * (np.asarray(o.x_def, np.float64) - step.x64)).astype(step.x.dtype, copy=False)
+    return Outcome(A, b, x_def, f"{o.model}-short{alpha:g}", o.projection, certified_margin(A, step.margin),
+                   o.rank, o.time_fit_s, [(A, b, None)], dict(o.extra))
+
+
+def with_shortened(outcomes, step: StepInput):
+    """`outcomes`, with the first one's shortened steps (`SHORTEN_LEVELS`) just before
+    doing nothing (the last resort; nothing after it is ever needed)."""
+    first = None
+    for o in outcomes:
+        if o.model == "none":
+            break
+        first = o if first is None else first
+        yield o
+    else:
+        o = None
+    if first is not None and np.isfinite(first.A).all():
+        for alpha in SHORTEN_LEVELS:
+            yield shortened(first, step, alpha)
+    yield nothing(step) if o is None else o
+
+
+class SingleMap:
+    """One model of the ladder, then the simpler ones, then nothing."""
+
+    def __init__(self, model, projection="auto"):
+        self.model, self.projection = model, projection
+
+    def chain(self):
+        if self.model not in MODELS:  # fit_step's residual-based "auto" (no topology)
+            return [self.model, "translation"]
+        k = MODELS.index(self.model)
+        return list(MODELS[k::-1])
+
+    def outcomes(self, step: StepInput):
+        for model in self.chain():
+            yield from_step_result(fit_step(step.x_prev, step.x, weights=step.weights, model=model,
+                                            projection=self.projection, margin=step.margin))
+        yield nothing(step)
+
+    def record(self, k, outcome):
+        pass
+
+    def groups(self):
+        return {}
+
+
+class Auto:
+    """The candidates of `selection`, in order of predicted CD passes."""
+
+    def __init__(self, seq, projection="auto", thickness=0.0, n_steps=0):
+        from ..trust.bounds import scene_arrays
+
+        _, self.E, self.F = scene_arrays(seq.positions[0], seq.edges, seq.faces)
+        self.obstacles = seq.obstacles
+        self.projection, self.thickness = projection, thickness
+        self.tables = [None] * n_steps
+
+    def outcomes(self, step: StepInput):
+        from ..fit.auto import candidate_result, candidate_table, rank, ranked_candidates
+        from ..trust.bounds import obstacle_separation, per_vertex_separation
+
+        d_start = per_vertex_separation(step.x64, self.E, self.F, step.r_q)
+        if self.obstacles:
+            d_start = np.minimum(d_start, obstacle_separation(step.x64, self.E, self.F, self.obstacles,
+                                                              step.r_q, step.s))
+        t0 = time.perf_counter()
+        x, x_prev, m, cands = ranked_candidates(step.x_prev, step.x, d_start, r_q=step.r_q,
+                                                thickness=self.thickness, weights=step.weights,
+                                                margin=step.margin, projection=self.projection)
+        for k in rank(cands):
+            o = from_step_result(candidate_result(x_prev, x, m, cands[k], t0))
+            o.extra["table"] = candidate_table(cands, k)
+            yield o
+
+    def record(self, k, outcome):
+        self.tables[k] = outcome.extra.get("table")
+
+    def groups(self):
+        return {"selection": selection_arrays(self.tables)}
+
+
+class PerComponent:
+    """One map per object (merged where paths may meet), then the affine chain."""
+
+    def __init__(self, seq, projection="auto", thickness=0.0, n_steps=0):
+        from .components import component_labels
+
+        self.seq, self.projection, self.thickness = seq, projection, thickness
+        self.labels = component_labels(seq.n_vertices, seq.edges, seq.faces, seq.components)
+        C = int(self.labels.max()) + 1
+        # NaN / -1 for steps that fell back to a single map
+        self.comp = {"labels": self.labels, "A": np.full((n_steps, C, 3, 3), np.nan),
+                     "b": np.full((n_steps, C, 3), np.nan), "group": np.full((n_steps, C), -1, dtype=np.int64),
+                     "rounds": np.zeros(n_steps, dtype=np.int64)}
+        self.fallback = SingleMap("affine", projection)
+
+    def outcomes(self, step: StepInput):
+        from .components import per_component_step
+
+        cs = per_component_step(step.x_prev, step.x, self.labels, edges=self.seq.edges, faces=self.seq.faces,
+                                thickness=self.thickness, weights=step.weights, margin=step.margin,
+                                projection=self.projection)
+        yield _component_outcome(cs, self.labels)
+        yield from self.fallback.outcomes(step)
+
+    def record(self, k, outcome):
+        cs = outcome.extra.get("components")
+        if cs is not None:
+            self.comp["A"][k], self.comp["b"][k], self.comp["group"][k] = cs.A, cs.b, cs.group
+            self.comp["rounds"][k] = cs.rounds
+
+    def groups(self):
+        return {"component_maps": self.comp}
+
+
+def _component_outcome(cs, labels) -> Outcome:
+    maps = []
+    for g in np.unique(cs.group):
+        c = int(np.flatnonzero(cs.group == g)[0])
+        maps.append((cs.A[c], cs.b[c], np.flatnonzero(cs.group[labels] == g)))
+    extra = {"components": cs}
+    if len(maps) == 1:  # everything merged: one global map
+        return Outcome(cs.A[0], cs.b[0], cs.x_def, next(iter(cs.models)), "auto", cs.certificate_margin,
+                       cs.rank, cs.time_fit_s, maps, extra)
+    # SPEC: steps/A is *the* map applied; with several there is none (NaN), and
+    # component_maps/A holds each component's map.
+    return Outcome(np.full((3, 3), np.nan), np.full(3, np.nan), cs.x_def, "per-component", "per-component",
+                   cs.certificate_margin, cs.rank, cs.time_fit_s, maps, extra)
+
+
+def make_strategy(model, seq, projection, thickness, n_steps):
+    """The strategy of a ``--model`` value."""
+    if model == "per-component":
+        return PerComponent(seq, projection, thickness, n_steps)
+    if model == "auto" and seq.kind != "points":
+        return Auto(seq, projection, thickness, n_steps)
+    return SingleMap(model, projection)
+
+
+def step_input(seq, s, margin, gate, weights, contact_radius) -> StepInput:
+    """Step `s` of `seq`; the query radius from the contact radius (at least the gate's thickness)."""
+    x_prev, x = seq.positions[s - 1], seq.positions[s]
+    x64 = np.ascontiguousarray(x, dtype=np.float64)
+    x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
+    r_q = query_radius(x64, x_pred, contact_distance(contact_radius, gate.thickness))
+    return StepInput(int(s), x_prev, x, x64, x_pred, r_q, margin, gate, weights)
+
+
+def selection_arrays(table_rows) -> dict:
+    """Per-step candidate tables of `select_step` as ``selection/...`` arrays.
+
+    ``candidates`` (C,) names in a fixed order; ``predicted_<figure>`` (S, C) with NaN
+    where a candidate was not certified (or the step was not selected); ``chosen`` (S,)
+    the index of the applied candidate (-1 when the step was not selected).
+    """
+    names = []
+    for table in table_rows:
+        for row in table or ():
+            if row["name"] not in names:
+                names.append(row["name"])
+    S, C = len(table_rows), len(names)
+    figures = ("k_1pct", "k_any", "hit_rate", "r_q99", "sigma_lb", "certificate_margin")
+    arrays = {f"predicted_{f}": np.full((S, C), np.nan) for f in figures}
+    chosen = np.full(S, -1, dtype=np.int64)
+    for k, table in enumerate(table_rows):
+        for row in table or ():
+            j = names.index(row["name"])
+            for f in figures:
+                arrays[f"predicted_{f}"][k, j] = row[f]
+            if row["chosen"]:
+                chosen[k] = j
+    arrays["candidates"] = np.array(names, dtype=str)
+    arrays["chosen"] = chosen
+    return arrays

@@ -1,0 +1,146 @@
+"""The shared safety gate of a step: one margin rule, the certificate, near pairs, obstacles.
+
+Every map `deform` writes passes `StepGate.passes` (SPEC section 5, "Real start
+states" and "Obstacles"):
+
+- the exact certificate `certificate.certify_map(A, margin_rule(thickness))` of every
+  applied map. With thickness 0 the margin is 0: a nonsingular path maps every
+  primitive by one bijection, so no disjoint pair ever meets, whatever the start
+  state holds;
+- with thickness h > 0 the margin is ``m = 1 / MARGIN_GAP_RADIUS_FACTOR``. A map whose
+  path keeps ``sigma_min >= m_c`` (``m_c >= m``: its rigorous fast bound, else m)
+  keeps every pair that starts more than ``(h + 2 delta) / m_c`` apart at least h
+  apart (delta: the rounding of the stored x_def, at most `NEAR_SLACK_REL` h / 2).
+  The pairs closer than that and their start distances come from one proximity
+  query per step (`verify.near_pairs`, radius `NEAR_FIRST_FACTOR` h, redone larger,
+  up to ``1.01 h / m``, only for a candidate that needs it); each candidate's path
+  goes through the conservative CCD (`verify.check_pairs`) for them: a pair at least h apart must stay so, a pair
+  resting inside h must stay disjoint, a pair touching at the start is left as it
+  was. No global margin is derived from the smallest gap, so resting contact does
+  not freeze a step;
+- obstacles held at the step's frame: half-spaces exactly, meshes by conservative CCD
+  (`verify.verify_step` with ``self_pairs=False``).
+
+Doing nothing (``x_def = x`` bit for bit) always passes and is not checked.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...constants import MARGIN_GAP_RADIUS_FACTOR, NEAR_FIRST_FACTOR, NEAR_SLACK_REL, UNIT_ROUNDOFF
+from ..fit.certificate import certify_map, fast_margin_bound
+
+
+
+def margin_rule(thickness) -> float:
+    """The certificate margin every path uses: 0 for thickness 0, else ``1 / MARGIN_GAP_RADIUS_FACTOR``."""
+    return 0.0 if float(thickness) <= 0.0 else 1.0 / MARGIN_GAP_RADIUS_FACTOR
+
+
+def deviation_bound(x, x_def, A, b) -> float:
+    """Rigorous upper bound of max_v |x_def_v - (A x_v + b)| (exact real A x + b).
+
+    fl(A x + b) has per-component error <= gamma_4 (sum_j |A_ij x_j| + |b_i|)
+    and the subtraction adds u |x_def - y|; 8 u covers both with room.
+    """
+    y = x @ A.T + b
+    r = np.abs(x_def - y)
+    s = np.abs(x) @ np.abs(A).T + np.abs(b) + np.abs(x_def)
+    e = r + 8.0 * UNIT_ROUNDOFF * s
+    return float(np.sqrt((e * e).sum(axis=1)).max() * (1.0 + 8.0 * UNIT_ROUNDOFF)) if len(x) else 0.0
+
+
+def _start_distance(x, kind, idx):
+    """Distances at `x` of the pairs `idx` (rows p, f0, f1, f2 or ea0, ea1, eb0, eb1)."""
+    from ..contact.distance import edge_edge_distance, point_triangle_distance
+
+    if not len(idx):
+        return np.zeros(0)
+    P = [x[idx[:, c]] for c in range(4)]
+    return point_triangle_distance(*P) if kind == "vf" else edge_edge_distance(*P)
+
+
+class StepGate:
+    """The safety gate of one step: start state `x`, topology, thickness, obstacles at `frame`.
+
+    Parameters
+    ----------
+    x : (N, 3) float
+    edges, faces : topology or None
+    thickness : float >= 0
+    obstacles : list of `penfree.sequence.Obstacle`
+    frame : int
+        The step's frame s (kinematic obstacles are held there).
+    """
+
+    def __init__(self, x, *, edges=None, faces=None, thickness=0.0, obstacles=(), frame=0):
+        self.x = np.ascontiguousarray(x, dtype=np.float64)
+        self.edges, self.faces = edges, faces
+        self.thickness = float(thickness)
+        self.margin = margin_rule(self.thickness)
+        self.obstacles = list(obstacles or ())
+        self.frame = int(frame)
+        self._near, self._near_radius = None, 0.0
+        self.has_topology = (edges is not None and len(edges) > 0) or (faces is not None and len(faces) > 0)
+
+    def near(self, reach):
+        """``[(kind, ij, idx, d0)]``: the pairs within at least `reach` at the start, with
+        their start distances. One proximity query, redone with a larger radius only when
+        a candidate needs one (a strongly shrinking map): pairs it leaves out start
+        farther apart than `reach`."""
+        if self._near is None or reach > self._near_radius:
+            from .path import near_pairs
+
+            self._near_radius = max(reach, NEAR_FIRST_FACTOR * self.thickness)
+            self._near = [(kind, ij, idx, _start_distance(self.x, kind, idx))
+                          for kind, ij, idx in near_pairs(self.x, self.edges, self.faces, self._near_radius)]
+        return self._near
+
+    def passes(self, x_def, maps) -> bool:
+        """True when the path x -> x_def is safe (see the module docstring).
+
+        Parameters
+        ----------
+        x_def : (N, 3) float
+        maps : list of (A (3, 3), b (3,), rows or None)
+            Every applied map and the vertices it moved (None: all).
+        """
+        x_def64 = np.asarray(x_def, dtype=np.float64)
+        if np.array_equal(x_def64, self.x):
+            return True  # doing nothing
+        if not all(np.isfinite(A).all() and certify_map(A, self.margin) for A, _, _ in maps):
+            return False
+        if self.thickness > 0.0 and self.has_topology and not self._near_ok(x_def64, maps):
+            return False
+        return self._obstacles_ok(x_def64)
+
+    def _near_ok(self, x_def64, maps) -> bool:
+        from .path import check_pairs
+
+        limit = 0.5 * NEAR_SLACK_REL * self.thickness
+        reach = 0.0  # pairs starting closer than this are not covered by the certificates
+        for A, b, rows in maps:
+            sl = slice(None) if rows is None else rows
+            A = np.asarray(A, np.float64)
+            delta = deviation_bound(self.x[sl], x_def64[sl], A, np.asarray(b, np.float64))
+            if not delta <= limit:
+                return False
+            m_c = max(self.margin, fast_margin_bound(A))  # certify_map(A, margin) passed
+            reach = max(reach, (self.thickness + 2.0 * delta) / m_c)
+        # distances are rounded: a relative and an absolute allowance, well above it
+        reach = reach * (1.0 + 1e-6) + 1e-12 * (float(np.abs(self.x).max()) if len(self.x) else 0.0)
+        close = [(kind, ij[d0 < reach], idx[d0 < reach]) for kind, ij, idx, d0 in self.near(reach)]
+        return check_pairs(close, self.x, x_def64, self.thickness)
+
+    def _obstacles_ok(self, x_def64) -> bool:
+        if not self.obstacles:
+            return True
+        from ..contact.obstacles import as_verify_obstacles
+        from .path import verify_step
+
+        obs, names = as_verify_obstacles(self.obstacles, self.frame, self.frame)
+        r = verify_step(self.x, x_def64, edges=self.edges, faces=self.faces, thickness=self.thickness,
+                        obstacles=obs, obstacle_names=names, max_pairs=0, start_intersections=False,
+                        pre_existing=True, self_pairs=False)
+        return r.n_violations == 0
