@@ -224,7 +224,7 @@ def read_from_h5(f: h5py.File, where: str) -> Sequence:
     obs = f.get("obstacles")
     if obs is not None:
         if not isinstance(obs, h5py.Group):
-            raise FormatError(f"obstacles must be a group of obstacles/<name>/positions in {where}:/obstacles")
+            raise FormatError(f"obstacles must be a group of obstacles/<name> groups ({OBSTACLE_FORMS}) in {where}:/obstacles")
         for name in sorted(obs):
             seq.obstacles.append(_read_obstacle(obs[name], f"obstacles/{name}", name, where))
     return seq
