@@ -67,11 +67,30 @@ def step_margin(x, seq, thickness, margin, d0=None):
     if d0 is None:
         from .trust_region import min_separation
 
-        radius = MARGIN_GAP_RADIUS_FACTOR * thickness
-        d0 = float(min_separation(x, E=seq.edges, F=seq.faces, radius=radius))
+        d0 = float(min_separation(x, E=seq.edges, F=seq.faces, radius=margin_gap_radius(thickness)))
     if d0 <= thickness:
         return None, d0
     return thickness / d0, d0
+
+
+def margin_gap_radius(thickness):
+    """Radius within which `step_margin` searches the smallest start gap d0."""
+    return MARGIN_GAP_RADIUS_FACTOR * thickness
+
+
+def start_state_lists(seq, thickness, margin, select):
+    """A `NeighbourList` for the per-step start-state queries of `deform_sequence`, or None.
+
+    Needed by ``auto`` (per-vertex separations) and by the margin thickness / d0 (the
+    smallest start gap); both equal the fresh queries bit for bit.
+    """
+    if seq.kind == "points" or not (select or (margin is None and thickness > 0)):
+        return None
+    from .neighbours import NeighbourList
+    from .trust_region import scene_arrays
+
+    _, E, F = scene_arrays(seq.positions[0], seq.edges, seq.faces)
+    return NeighbourList(E, F)
 
 
 def deform_sequence(
@@ -161,11 +180,11 @@ def deform_sequence(
         comp = {"labels": labels, "A": np.full((S, C, 3, 3), np.nan), "b": np.full((S, C, 3), np.nan),
                 "group": np.full((S, C), -1, dtype=np.int64), "rounds": np.zeros(S, dtype=np.int64)}
     select = model == "auto" and seq.kind != "points"
+    # One neighbour list serves the start-state proximity queries of all steps.
+    nl = start_state_lists(seq, thickness, margin, select)
     if select:
         from .selection import select_step
-        from .trust_region import scene_arrays, per_vertex_separation
 
-        _, E, F = scene_arrays(pos[0], seq.edges, seq.faces)
         table_rows = [None] * S
 
     # Untimed warm-up on a few vertices: JIT compilation (first run, or a stale cache)
@@ -179,10 +198,11 @@ def deform_sequence(
         x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
         if select:
             r_q = query_radius(x64, x_pred, thickness)
-            d_start = per_vertex_separation(x64, E, F, r_q)
+            d_start = nl.separations(x64, r_q)
             m, d0 = step_margin(x, seq, thickness, margin, d0=float(d_start.min()) if len(d_start) else r_q)
         else:
-            m, d0 = step_margin(x, seq, thickness, margin)
+            m, d0 = step_margin(x, seq, thickness, margin,
+                                d0=None if nl is None else float(nl.separations(x64, margin_gap_radius(thickness)).min()))
         if m is None:  # start state within the thickness: only a translation is safe
             r = _applied(fit_step(x_prev, x, weights=weights, model="translation", projection=projection))
         elif per_component:

@@ -268,6 +268,28 @@ def _unpack(source, deformed, frames, edges, faces, thickness):
     return positions, deformed, frames, edges, faces, float(thickness or 0.0)
 
 
+def listed_bounds(positions, edges, faces, thickness, gamma):
+    """``bounds_fn(x, r_q)``: `trust_region_bounds` over one reused `NeighbourList`.
+
+    The bounds equal `trust_region_bounds` bit for bit (`penfree.core.neighbours`);
+    the list is shared by all states a report visits (x, x_def, replay states).
+    """
+    from .neighbours import NeighbourList
+    from .trust_region import _radius, scene_arrays
+
+    _, E, F = scene_arrays(np.asarray(positions[0]), edges, faces)
+    nl = NeighbourList(E, F)
+    h = _radius(thickness, "thickness")
+    gamma = _radius(gamma, "gamma")
+
+    def bounds_fn(x, r_q):
+        d = nl.separations(np.ascontiguousarray(x, dtype=np.float64), r_q)
+        return gamma * np.maximum(0.0, d - h)
+
+    bounds_fn.neighbours = nl
+    return bounds_fn
+
+
 def compute_stats(source=None, *, positions=None, deformed=None, frames=None, edges=None, faces=None,
                   thickness=None, gamma=DEFAULT_GAMMA, replay=False, replay_cap=DEFAULT_REPLAY_CAP,
                   bounds_fn=None, progress=None) -> dict:
@@ -314,11 +336,7 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
         raise InputError("compute_stats needs a deform result, or positions with deformed= and frames=")
     positions, deformed, frames, edges, faces, thickness = _unpack(source, deformed, frames, edges, faces, thickness)
     if bounds_fn is None:
-        from .trust_region import trust_region_bounds
-
-        def bounds_fn(x, r_q):
-            return trust_region_bounds(x, edges=edges, faces=faces, thickness=thickness, gamma=gamma,
-                                       query_radius=r_q)
+        bounds_fn = listed_bounds(positions, edges, faces, thickness, gamma)
 
     T, N = positions.shape[0], positions.shape[1]
     S = frames.shape[0]

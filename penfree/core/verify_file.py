@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..constants import DEFAULT_MAX_PAIRS
+from ..constants import DEFAULT_MAX_PAIRS, MARGIN_GAP_RADIUS_FACTOR
 from ..errors import InputError
 from .certificate import certify, fast_margin_bound
 from .verify import (
@@ -24,6 +24,8 @@ from .verify import (
     _thickness,
     verify_step,
 )
+from .topology import referenced_vertices
+from .verify_reuse import listed_start_pass, result_lists
 
 MODES = ("auto", "ccd", "certificate")
 #: Margins tried (largest first) when the field-of-values bound gives none:
@@ -58,7 +60,7 @@ def _margin(A, need_positive):
 
 
 def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0.0,
-                       max_pairs=DEFAULT_MAX_PAIRS):
+                       max_pairs=DEFAULT_MAX_PAIRS, neighbours=None):
     """Prove an affine step safe from its certificate; None when the proof does not apply.
 
     Parameters
@@ -71,6 +73,9 @@ def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0
     b : (3,) float64
     edges, faces, thickness, max_pairs
         As in `verify_step`.
+    neighbours : NeighbourList, optional
+        Reused across the steps of a result (`verify_reuse.result_lists`, built over
+        this scene's E and F): the static proximity pass is answered from it.
 
     Returns
     -------
@@ -109,9 +114,12 @@ def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0
     if not np.isfinite(g):
         return None
     col = _Collector()
-    if len(scene.F):
-        _edge_face(col, "ef", scene.x_t0, scene.E, scene.F)
-    _pairs_self(col, scene, g, static=True)
+    if neighbours is not None:
+        listed_start_pass(col, neighbours, scene.x_t0, g)
+    else:
+        if len(scene.F):
+            _edge_face(col, "ef", scene.x_t0, scene.E, scene.F)
+        _pairs_self(col, scene, g, static=True)
     if col.kinds:
         return None  # a start pair within g (maybe a real violation): full CCD decides
     sep = thickness if m == 0.0 else max(thickness, m * g / (1.0 + 1e-9) - 2.0 * delta)
@@ -258,13 +266,14 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         raise InputError(f"{res.origin} holds no steps/deformed to verify in {res.origin}:/steps/deformed")
     claimed = st.get("certificate_margin")
     rep = VerifyReport(res.origin, "result", h, mode)
+    nl = _result_lists(seq, mode)
     for k, s in enumerate(np.asarray(st["frame"]).tolist()):
         if s not in sel:
             continue
         x = np.asarray(seq.positions[s], dtype=np.float64)
         x_def = np.asarray(st["deformed"][k], dtype=np.float64)
         A, b = np.asarray(st["A"][k], np.float64), np.asarray(st["b"][k], np.float64)
-        m, _ = step_margin(x, seq, h, None)
+        m, _ = step_margin(x, seq, h, None, d0=_start_gap(nl, x, seq, h))
         per_component = not np.isfinite(A).all()
         if per_component:
             # Several maps (deform --model per-component): each must be certified, and
@@ -275,7 +284,8 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
             cert = certify(A, m) if m is not None else bool(np.array_equal(A, np.eye(3)))
         r = None
         if mode != "ccd" and not seq.obstacles and not per_component:
-            r = verify_affine_step(x, x_def, A, b, edges=seq.edges, faces=seq.faces, thickness=h, max_pairs=max_pairs)
+            r = verify_affine_step(x, x_def, A, b, edges=seq.edges, faces=seq.faces, thickness=h, max_pairs=max_pairs,
+                                   neighbours=nl)
         if r is None and mode == "certificate":
             r = VerifyResult(ok=False, start_ok=True, min_separation=0.0, method="certificate")
         if r is None:
@@ -287,6 +297,29 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         if progress is not None:
             progress()
     return rep
+
+
+def _result_lists(seq, mode):
+    """One neighbour list for the start states of all steps (`verify_reuse`), or None.
+
+    None for CCD-only runs, with obstacles (their steps take the full CCD), and for
+    scenes with isolated vertices or degenerate segments, whose pair sets differ
+    between the proximity stages (the fresh passes handle those).
+    """
+    if mode == "ccd" or seq.obstacles or seq.kind == "points":
+        return None
+    scene, _ = _bodies(seq.positions[0], seq.positions[0], seq.edges, seq.faces, None)
+    E = scene.E
+    if (E[:, 0] == E[:, 1]).any() or not referenced_vertices(scene.x_t0.shape[0], scene.F, E).all():
+        return None
+    return result_lists(E, scene.F)
+
+
+def _start_gap(nl, x, seq, h):
+    """d0 of `step_margin` from the list (equal to the fresh `min_separation`), or None."""
+    if nl is None or h <= 0:
+        return None
+    return float(nl.separations(x, MARGIN_GAP_RADIUS_FACTOR * h).min())
 
 
 def _component_maps(res, k):

@@ -1,0 +1,85 @@
+"""The certificate path of verify over reused neighbour lists gives the verdicts of the
+fresh passes (the oracle), step by step and for whole result files, including the
+hard cases where the proof must decline (an edge through a face, a pair within g)."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from penfree.core import verify_file as vf_mod
+from penfree.core.pipeline import deform_sequence
+from penfree.core.verify import _bodies
+from penfree.core.verify_file import verify_affine_step, verify_file
+from penfree.core.verify_reuse import result_lists
+from penfree.formats import read_sequence
+from penfree.formats.result import write_result
+
+from _geom import rot
+
+SAMPLES = Path(__file__).resolve().parents[2] / "samples"
+
+
+def _lists(x, edges, faces):
+    scene, _ = _bodies(x, x, edges, faces, None)
+    return result_lists(scene.E, scene.F)
+
+
+def _same(a, b):
+    assert (a is None) == (b is None)
+    if a is not None:
+        assert a.to_dict() == b.to_dict()
+
+
+@pytest.mark.parametrize("name", ["twisting_cloth.h5", "cables.h5"])
+@pytest.mark.parametrize("thickness", [0.0, 1e-3])
+def test_listed_certificate_path_matches_fresh(name, thickness):
+    seq = read_sequence(SAMPLES / name)
+    pos = np.asarray(seq.positions, dtype=np.float64)
+    nl = _lists(pos[0], seq.edges, seq.faces)
+    for s in range(1, min(pos.shape[0], 12)):
+        x = pos[s]
+        A = rot([1, 1, 0], 0.5 * s) @ np.diag([1.0, 1.002, 0.999])
+        c = x.mean(axis=0)
+        x_def = (x - c) @ A.T + c
+        b = c - A @ c
+        fresh = verify_affine_step(x, x_def, A, b, edges=seq.edges, faces=seq.faces, thickness=thickness)
+        listed = verify_affine_step(x, x_def, A, b, edges=seq.edges, faces=seq.faces, thickness=thickness,
+                                    neighbours=nl)
+        _same(fresh, listed)
+
+
+def _two_triangles(z_top):
+    x = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0],
+                  [0.2, 0.2, z_top], [0.3, 0.2, z_top + 0.5], [0.2, 0.3, z_top - 0.5]], dtype=float)
+    return x, np.array([[0, 1, 2], [3, 4, 5]])
+
+
+@pytest.mark.parametrize("case, z_top, thickness", [
+    ("edge-pierces-face", 0.0, 0.0),
+    ("pair-within-g", 0.6, 0.2),
+    ("separated", 0.9, 0.05),
+])
+def test_hard_cases(case, z_top, thickness):
+    x, F = _two_triangles(z_top)
+    A = np.eye(3)
+    b = np.zeros(3)
+    nl = _lists(x, None, F)
+    fresh = verify_affine_step(x, x.copy(), A, b, faces=F, thickness=thickness)
+    listed = verify_affine_step(x, x.copy(), A, b, faces=F, thickness=thickness, neighbours=nl)
+    _same(fresh, listed)
+    assert (fresh is None) == (case != "separated")
+
+
+@pytest.mark.parametrize("name", ["twisting_cloth_contact.h5", "rods.h5"])
+def test_verify_file_same_report_with_and_without_lists(tmp_path, monkeypatch, name):
+    seq = read_sequence(SAMPLES / name)
+    seq.positions = np.asarray(seq.positions)[:8]
+    out = deform_sequence(seq, model="affine")
+    path = tmp_path / "res.h5"
+    write_result(path, seq, out.steps, {"options": out.options})
+    with_lists = verify_file(path).to_dict()
+    monkeypatch.setattr(vf_mod, "_result_lists", lambda seq, mode: None)
+    fresh = verify_file(path).to_dict()
+    assert with_lists == fresh
+    assert with_lists["ok"]
