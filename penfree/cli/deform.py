@@ -11,14 +11,14 @@ from ..constants import MODELS, PROJECTIONS
 from ..errors import InputError
 from .options import (
     Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames,
-    set_threads, thickness_option, threads_option,
+    scaleout_options, set_threads, thickness_option, threads_option,
 )
 
 
 @click.command("deform")
-@click.argument("input_path", metavar="IN", type=click.Path(dir_okay=True))
-@click.option("-o", "--output", "output_path", required=True, type=click.Path(dir_okay=False),
-              help="Result file (HDF5) to write.")
+@click.argument("input_paths", metavar="IN...", nargs=-1, required=True, type=click.Path(dir_okay=True))
+@click.option("-o", "--output", "output_path", required=True, type=click.Path(),
+              help="Result file (HDF5) to write; with several inputs a directory (<dir>/<stem>.h5 each).")
 @click.option("--model", type=click.Choice(MODELS + ("auto", "per-component")), default="auto",
               show_default=True,
               help="Map family fitted toward the constant-velocity prediction; auto: the certified "
@@ -39,8 +39,9 @@ from .options import (
               help="Also compute trust-region statistics (stats/...) for `penfree report`.")
 @click.option("--format", "in_format", default=None, help="Input format (default: from the extension).")
 @json_option
-def command(input_path, output_path, model, projection, margin, thickness, frames, weights_name,
-            threads, overwrite, per_vertex, with_stats, in_format, as_json):
+@scaleout_options
+def command(input_paths, output_path, model, projection, margin, thickness, frames, weights_name,
+            threads, overwrite, per_vertex, with_stats, in_format, as_json, workers, scheduler):
     """Fit, certify and apply a global affine map to every step of IN.
 
     Each step s moves frame s toward the prediction 2 x^s - x^(s-1); the straight path
@@ -50,7 +51,18 @@ def command(input_path, output_path, model, projection, margin, thickness, frame
     from ..formats import read_sequence
     from ..formats.atomic import check_output
     from ..formats.result import write_result
+    from ..scaleout import is_scaleout
 
+    if is_scaleout(input_paths, workers, scheduler):  # several inputs / Dask: penfree.scaleout
+        if weights_name:
+            raise InputError("--weights is not supported with several inputs, --workers or --scheduler")
+        from . import scaleout
+
+        opts = dict(model=model, projection=projection, margin=margin, thickness=thickness, per_vertex=per_vertex,
+                    frames=parse_frames(frames), format=in_format)
+        return scaleout.deform(input_paths, output_path, opts, overwrite=overwrite, with_stats=with_stats,
+                               workers=workers, scheduler=scheduler, threads=threads, as_json=as_json)
+    input_path = input_paths[0]
     check_output(output_path, overwrite, inputs=[input_path])
     frame_slice = parse_frames(frames)
     set_threads(threads)

@@ -4,7 +4,7 @@ import click
 
 from ..constants import DEFAULT_MAX_PAIRS
 from .options import (
-    Progress, echo_json, frames_option, json_option, parse_frames, set_threads,
+    Progress, echo_json, frames_option, json_option, parse_frames, scaleout_options, set_threads,
     thickness_option, threads_option,
 )
 
@@ -35,7 +35,7 @@ def _step_line(step):
 
 
 @click.command("verify")
-@click.argument("path", metavar="FILE", type=click.Path(dir_okay=True))
+@click.argument("paths", metavar="FILE...", nargs=-1, required=True, type=click.Path(dir_okay=True))
 @thickness_option
 @frames_option
 @threads_option
@@ -46,7 +46,8 @@ def _step_line(step):
               help="Deform results: 'ccd' runs the full CCD on every step; 'auto' proves affine "
                    "steps from their exact certificate when it applies, else CCD; 'certificate' "
                    "never runs CCD (unprovable steps fail). All are sound.")
-def command(path, thickness, frames, threads, as_json, max_pairs, mode):
+@scaleout_options
+def command(paths, thickness, frames, threads, as_json, max_pairs, mode, workers, scheduler):
     """Check that no two non-adjacent primitives come within THICKNESS along each step.
 
     A deform result is checked from positions[frame] to steps/deformed (plus the exact
@@ -55,7 +56,18 @@ def command(path, thickness, frames, threads, as_json, max_pairs, mode):
     """
     from ..core.verify_file import n_steps, verify_file
 
+    from ..scaleout import is_scaleout
+
     frame_slice = parse_frames(frames)
+    if is_scaleout(paths, workers, scheduler):  # several inputs / Dask: penfree.scaleout
+        from . import scaleout
+
+        if not scaleout.verify(paths, thickness=thickness, frames=frame_slice, mode=mode, max_pairs=max_pairs,
+                               workers=workers, scheduler=scheduler, threads=threads, as_json=as_json,
+                               step_line=_step_line):
+            click.get_current_context().exit(1)
+        return
+    path = paths[0]
     set_threads(threads)
     with Progress(n_steps(path, frame_slice), "verify") as bar:
         report = verify_file(path, thickness=thickness, frames=frame_slice, mode=mode,
