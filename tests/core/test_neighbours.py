@@ -10,6 +10,7 @@ import numba
 import numpy as np
 import pytest
 
+from penfree.core import broad_phase as bp
 from penfree.core import neighbours as nbm
 from penfree.core.broad_phase import edge_edge_candidates, vertex_face_candidates
 from penfree.core.distance import edge_edge_distance, point_triangle_distance
@@ -149,13 +150,14 @@ def test_affine_residual_bounds_the_true_residual():
 @pytest.fixture
 def force_parallel(monkeypatch):
     """Run the dual-build kernels' parallel builds even on small inputs."""
-    for k in (nbm._ee_sq, nbm._vf_sq, nbm._gather_min):
+    for k in (nbm._ee_sq, nbm._vf_sq, nbm._gather_min, bp._count_rows, bp._fill_rows, bp._min_rows):
         monkeypatch.setattr(k, "min_work", 0)
     yield
     numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
 
 
 def test_identical_for_one_and_two_threads(force_parallel):
+    """Broad phase, per-vertex separations and listed queries: the same bits on 1 and 2 threads."""
     rng = np.random.default_rng(3)
     V, F = sheet(30, rng)
     _, E, F = scene_arrays(V, None, F)
