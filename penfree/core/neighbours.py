@@ -1,7 +1,7 @@
 """Neighbour lists reused across frames (Verlet lists with a skin).
 
-Consecutive states of a recording (frame s, its deformed state, frame s + 1, ...)
-differ by a fraction of an edge, yet every proximity query would start from scratch.
+Consecutive states of a recording (frame s, its deformed state, frame s + 1, ...) are
+close to each other, yet every proximity query would start from scratch.
 A `NeighbourList` builds the candidate pairs within ``r_b = r + skin`` of a *build
 state* once and answers later queries at other states from them, as molecular-dynamics
 codes do, until the states have moved too far; then it rebuilds.
@@ -37,8 +37,9 @@ The skin is chosen at each build from the recent motion by a cost model
 lasts ``s / g`` queries, a build costs about `BUILD_COST` fresh queries and a listed
 query `LISTED_COST`, and pair counts grow like ``(1 + s / r)^2``. When no skin beats a
 fresh query (the scene moves a query radius per step), the query is answered fresh and
-no list is kept. `NeighbourList.info` reports the skin, the builds, reuses and fresh
-queries.
+no list is kept (in the 64K reference recordings a vertex moves about a query radius
+per step, and that is what happens: benchmarks/bench_neighbours.py, BENCHMARKS.md).
+`NeighbourList.info` reports the skin, the builds, reuses and fresh queries.
 
 Parallel and deterministic: the pair distances are evaluated in a ``prange`` over pairs,
 each writing its own slot, and folded into vertices by a ``prange`` over vertices that

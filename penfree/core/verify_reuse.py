@@ -12,6 +12,7 @@ conservative CCD as the fresh pass, so the verdict is the one the fresh pass giv
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from .ccd import ccd_indexed
 from .neighbours import NeighbourList
@@ -29,10 +30,34 @@ def result_lists(scene_E, scene_F):
     return NeighbourList(scene_E, scene_F, edge_face=True)
 
 
+@njit(cache=True)
+def _boxes_touch(x, E, F, ef):
+    # The fresh pass's broad phase: exact (uninflated) boxes of edge and face at x.
+    out = np.empty(ef.shape[0], dtype=np.bool_)
+    for k in range(ef.shape[0]):
+        e, f = ef[k, 0], ef[k, 1]
+        ok = True
+        for a in range(3):
+            elo = min(x[E[e, 0], a], x[E[e, 1], a])
+            ehi = max(x[E[e, 0], a], x[E[e, 1], a])
+            flo = min(x[F[f, 0], a], x[F[f, 1], a], x[F[f, 2], a])
+            fhi = max(x[F[f, 0], a], x[F[f, 1], a], x[F[f, 2], a])
+            if elo > fhi or flo > ehi:
+                ok = False
+                break
+        out[k] = ok
+    return out
+
+
 def listed_edge_face(col, x, E, F, ef):
-    """`verify._edge_face` (kind ``"ef"``) over the listed edge-face pairs `ef` (K, 2)."""
+    """`verify._edge_face` (kind ``"ef"``) over the listed edge-face pairs `ef` (K, 2).
+
+    The listed pairs whose exact boxes at `x` touch are the fresh pass's candidates
+    (an edge meeting a face has touching boxes), tested by the same exact test.
+    """
     if not len(ef):
         return
+    ef = ef[_boxes_touch(x, E, F, ef)]
     k = np.ascontiguousarray(ef[:, 0])
     f = np.ascontiguousarray(ef[:, 1])
     keep = _share_no_vertex(E, F, k, f)
