@@ -183,3 +183,11 @@ def test_without_dask_one_line_and_exit_2(inputs, tmp_path, monkeypatch):
     assert r.exit_code == 2
     assert "pip install 'penfree[dask]'" in r.output and len(r.output.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_single_input_output_directory_is_refused(inputs, tmp_path):
+    out = tmp_path / "outdir"
+    out.mkdir()
+    r = CliRunner().invoke(main, ["deform", str(inputs / "rods.h5"), "-o", str(out), "--overwrite"])
+    assert r.exit_code == 2 and "is a directory" in r.output
+    assert not any(out.iterdir())

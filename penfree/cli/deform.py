@@ -63,6 +63,9 @@ def command(input_paths, output_path, model, projection, margin, thickness, fram
         return scaleout.deform(input_paths, output_path, opts, overwrite=overwrite, with_stats=with_stats,
                                workers=workers, scheduler=scheduler, threads=threads, as_json=as_json)
     input_path = input_paths[0]
+    if os.path.isdir(output_path):
+        raise InputError(f"-o {output_path} is a directory; give a result file name (a directory only with "
+                         f"several inputs)")
     check_output(output_path, overwrite, inputs=[input_path])
     frame_slice = parse_frames(frames)
     set_threads(threads)
