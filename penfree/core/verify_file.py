@@ -114,9 +114,7 @@ def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0
     if not np.isfinite(g):
         return None
     col = _Collector()
-    if neighbours is not None:
-        listed_start_pass(col, neighbours, scene.x_t0, g)
-    else:
+    if neighbours is None or not listed_start_pass(col, neighbours, scene.x_t0, g):
         if len(scene.F):
             _edge_face(col, "ef", scene.x_t0, scene.E, scene.F)
         _pairs_self(col, scene, g, static=True)

@@ -88,7 +88,15 @@ def listed_start_pass(col, nl, x, g):
         Start state.
     g : float >= 0
         Required separation.
+
+    Returns
+    -------
+    bool
+        False when the list declined (its cost model prefers a fresh query at this
+        state): `col` is untouched and the caller runs the fresh passes.
     """
+    if nl.ensure(x, g) == "fresh":
+        return False  # the cost model prefers a fresh pass here
     E, F = nl.E, nl.F
     pairs = nl.pairs(x, g)
     if len(F):
@@ -103,3 +111,4 @@ def listed_start_pass(col, nl, x, g):
     if len(vf):
         idx = np.concatenate([vf[:, :1], F[vf[:, 1]]], axis=1)
         _narrow(col, "vf", vf, idx, x, x, "vf", g)
+    return True

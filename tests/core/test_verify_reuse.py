@@ -11,6 +11,7 @@ from penfree.core import verify_file as vf_mod
 from penfree.core.pipeline import deform_sequence
 from penfree.core.verify import _bodies
 from penfree.core.verify_file import verify_affine_step, verify_file
+from penfree.core.neighbours import NeighbourList
 from penfree.core.verify_reuse import result_lists
 from penfree.formats import read_sequence
 from penfree.formats.result import write_result
@@ -20,9 +21,12 @@ from _geom import rot
 SAMPLES = Path(__file__).resolve().parents[2] / "samples"
 
 
-def _lists(x, edges, faces):
+def _lists(x, edges, faces, skin=None):
+    """The verify lists; a fixed skin forces a kept list (the automatic one may answer fresh)."""
     scene, _ = _bodies(x, x, edges, faces, None)
-    return result_lists(scene.E, scene.F)
+    if skin is None:
+        return result_lists(scene.E, scene.F)
+    return NeighbourList(scene.E, scene.F, edge_face=True, skin=skin)
 
 
 def _same(a, b):
@@ -33,10 +37,11 @@ def _same(a, b):
 
 @pytest.mark.parametrize("name", ["twisting_cloth.h5", "cables.h5"])
 @pytest.mark.parametrize("thickness", [0.0, 1e-3])
-def test_listed_certificate_path_matches_fresh(name, thickness):
+@pytest.mark.parametrize("skin", [None, 0.02])
+def test_listed_certificate_path_matches_fresh(name, thickness, skin):
     seq = read_sequence(SAMPLES / name)
     pos = np.asarray(seq.positions, dtype=np.float64)
-    nl = _lists(pos[0], seq.edges, seq.faces)
+    nl = _lists(pos[0], seq.edges, seq.faces, skin)
     for s in range(1, min(pos.shape[0], 12)):
         x = pos[s]
         A = rot([1, 1, 0], 0.5 * s) @ np.diag([1.0, 1.002, 0.999])
@@ -47,6 +52,8 @@ def test_listed_certificate_path_matches_fresh(name, thickness):
         listed = verify_affine_step(x, x_def, A, b, edges=seq.edges, faces=seq.faces, thickness=thickness,
                                     neighbours=nl)
         _same(fresh, listed)
+    if skin is not None:
+        assert nl.info["builds"] >= 1 and nl.info["fresh"] == 0
 
 
 def _two_triangles(z_top):
@@ -64,7 +71,7 @@ def test_hard_cases(case, z_top, thickness):
     x, F = _two_triangles(z_top)
     A = np.eye(3)
     b = np.zeros(3)
-    nl = _lists(x, None, F)
+    nl = _lists(x, None, F, skin=0.1)
     fresh = verify_affine_step(x, x.copy(), A, b, faces=F, thickness=thickness)
     listed = verify_affine_step(x, x.copy(), A, b, faces=F, thickness=thickness, neighbours=nl)
     _same(fresh, listed)
@@ -72,12 +79,18 @@ def test_hard_cases(case, z_top, thickness):
 
 
 @pytest.mark.parametrize("name", ["twisting_cloth_contact.h5", "rods.h5"])
-def test_verify_file_same_report_with_and_without_lists(tmp_path, monkeypatch, name):
+@pytest.mark.parametrize("forced", [False, True])
+def test_verify_file_same_report_with_and_without_lists(tmp_path, monkeypatch, name, forced):
     seq = read_sequence(SAMPLES / name)
     seq.positions = np.asarray(seq.positions)[:8]
     out = deform_sequence(seq, model="affine")
     path = tmp_path / "res.h5"
     write_result(path, seq, out.steps, {"options": out.options})
+    if forced:  # kept lists with a skin (the automatic choice may answer these steps fresh)
+        real = vf_mod._result_lists
+        monkeypatch.setattr(vf_mod, "_result_lists", lambda seq, mode: (
+            None if real(seq, mode) is None else NeighbourList(real(seq, mode).E, real(seq, mode).F,
+                                                               edge_face=True, skin=0.02)))
     with_lists = verify_file(path).to_dict()
     monkeypatch.setattr(vf_mod, "_result_lists", lambda seq, mode: None)
     fresh = verify_file(path).to_dict()
