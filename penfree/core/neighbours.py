@@ -55,7 +55,8 @@ from numba import njit, prange
 from .broad_phase import _box_arrays, _Plan
 from .distance import edge_edge_sq, point_triangle_sq
 from .parallel import parallel_kernel
-from .topology import referenced_vertices
+from ..errors import InputError
+from .topology import as_positions, referenced_vertices
 
 #: Skins tried by the cost model, relative to the query radius.
 SKIN_CANDIDATES_REL = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
@@ -293,6 +294,8 @@ class NeighbourList:
         self.F = np.ascontiguousarray(F, dtype=np.int64)
         self.fixed_skin = None if skin is None else float(skin)
         self.edge_face = bool(edge_face)
+        # number of vertices: from the first query unless given by `for_scene`
+        self.n = None
         self.x_b = None  # build state of the current list (None: no list)
         self.r_b = -np.inf
         self.x_ref = None  # state the motion is measured from (x_b, or the last query)
@@ -408,6 +411,33 @@ class NeighbourList:
         self._build(x, radius, 0.0 if skin is None else skin)
         return "built"
 
+    @classmethod
+    def for_scene(cls, x, *, edges=None, faces=None, **kw):
+        """A list for a scene given as in `trust_region_bounds` (validated once).
+
+        Examples
+        --------
+        >>> x = np.array([[0.0, 0, 0], [1, 0, 0], [0, 0.5, 0.1], [1, 0.5, 0.1]])
+        >>> nl = NeighbourList.for_scene(x, edges=[[0, 1], [2, 3]], skin=0.1)
+        >>> nl.separations(x, 1.0).round(3).tolist()
+        [0.51, 0.51, 0.51, 0.51]
+        """
+        from .trust_region import scene_arrays
+
+        _, E, F = scene_arrays(x, edges, faces)
+        nl = cls(E, F, **kw)
+        nl.n = int(np.asarray(x).shape[0])
+        return nl
+
+    def _positions(self, x, radius):
+        x = as_positions(x, "x")
+        if self.n is not None and x.shape[0] != self.n:
+            raise InputError(f"x must be ({self.n}, 3) like the scene of this neighbour list; got {x.shape}")
+        r = float(radius)
+        if not (np.isfinite(r) and r >= 0.0):
+            raise InputError(f"radius must be finite and >= 0; got {radius}")
+        return x, r
+
     # --- queries ---------------------------------------------------------------------
 
     def pair_sq(self, x):
@@ -433,7 +463,9 @@ class NeighbourList:
         d : (N,) float64
             ``min(radius, distance to the nearest non-adjacent primitive)``.
         """
-        x = np.ascontiguousarray(x, dtype=np.float64)
+        x, radius = self._positions(x, radius)
+        if self.n is None:
+            self.n = x.shape[0]
         if self.ensure(x, radius) == "fresh":
             from .trust_region import per_vertex_separation
 
@@ -454,5 +486,8 @@ class NeighbourList:
             ``edge_face=True`` ``ef (K, 2)`` (edge, face) whose boxes came within the
             build radius; pairs sharing a vertex are never listed.
         """
+        x, radius = self._positions(x, radius)
+        if self.n is None:
+            self.n = x.shape[0]
         self.ensure(x, radius, need_list=True)
         return {"ee": self.P_ee, "vf": self.P_vf, "ef": self.P_ef}

@@ -192,3 +192,18 @@ def test_deform_identical_with_lists_reused_or_bypassed(monkeypatch):
     for a, b in ((outs[0], outs[2]), (outs[1], outs[3])):
         for key in ("A", "b", "deformed", "certificate_margin", "start_gap"):
             np.testing.assert_array_equal(a[key], b[key])
+
+
+@pytest.mark.parametrize("case", ["nan", "wrong-n", "negative-radius"])
+def test_bad_queries_raise_input_error(case):
+    from penfree import NeighbourList as Public
+    from penfree.errors import InputError
+
+    x = np.zeros((4, 3)) + np.arange(4.0)[:, None]
+    nl = Public.for_scene(x, edges=[[0, 1], [2, 3]])
+    bad = {"nan": (np.full((4, 3), np.nan), 1.0), "wrong-n": (np.zeros((5, 3)), 1.0),
+           "negative-radius": (x, -1.0)}[case]
+    with pytest.raises(InputError):
+        nl.separations(*bad)
+    with pytest.raises(InputError):
+        nl.pairs(*bad)
