@@ -394,17 +394,19 @@ def deform_many(specs, outdir, *, options, overwrite=False, with_stats=False, wo
                 shutil.rmtree(_parts_dir(o), ignore_errors=True)
             raise
     done = []
-    for path, out in zip(inputs, outs):
-        mine = sorted(p for t, p in zip(tasks, parts) if t.path == path)
-        steps, groups = merge_partials(mine)
-        seq = read_sequence(path, format=options.get("format"))
-        frames = options.get("frames")
-        opts = _options_of(options, seq, frames)
-        attrs = {"penfree_version": __version__, "input": os.path.basename(path),
-                 "options": dict(opts, weights="weights" if seq.weights is not None else None)}
-        write_result(out, seq, steps, attrs, groups=groups, overwrite=overwrite)
-        shutil.rmtree(_parts_dir(out), ignore_errors=True)
-        done.append((path, out, steps))
+    try:
+        for path, out in zip(inputs, outs):
+            mine = sorted(p for t, p in zip(tasks, parts) if t.path == path)
+            steps, groups = merge_partials(mine)
+            seq = read_sequence(path, format=options.get("format"))
+            opts = _options_of(options, seq, options.get("frames"))
+            attrs = {"penfree_version": __version__, "input": os.path.basename(path),
+                     "options": dict(opts, weights="weights" if seq.weights is not None else None)}
+            write_result(out, seq, steps, attrs, groups=groups, overwrite=overwrite)
+            done.append((path, out, steps))
+    finally:  # partial results never outlive the run, merged or not
+        for o in outs:
+            shutil.rmtree(_parts_dir(o), ignore_errors=True)
     return done
 
 
