@@ -95,7 +95,8 @@ def command(input_paths, output_path, model, projection, margin, thickness, fram
 
     summary = summarize_steps(result.steps)
     summary.update(output=output_path, input=input_path, wall_time_s=elapsed,
-                   frames_per_s=summary["steps"] / elapsed if elapsed > 0 else None)
+                   frames_per_s=summary["steps"] / elapsed if elapsed > 0 else None,
+                   neighbour_list=result.neighbours)
     if as_json:
         echo_json(summary)
         return
@@ -146,3 +147,8 @@ def _print_summary(s, seq):
     click.echo(f"  to prediction    RMS distance x{s['residual_pred_rms_ratio']:.3f} of doing nothing")
     click.echo(f"  fit time         {s['mean_time_fit_ms']:.3f} ms/step; total {s['wall_time_s']:.2f} s "
                f"({s['frames_per_s']:.1f} steps/s incl. I/O)")
+    nl = s.get("neighbour_list") or {}
+    if nl.get("queries"):
+        skin = "none (motion too large to pay)" if nl["builds"] == 0 else f"{nl['skin']:.3g}"
+        click.echo(f"  neighbour list   {nl['queries']} queries: {nl['reused']} reused, {nl['builds']} builds, "
+                   f"{nl['fresh']} fresh; skin {skin}")

@@ -27,6 +27,8 @@ class DeformOutput:
     steps: dict
     options: dict = field(default_factory=dict)
     groups: dict = field(default_factory=dict)
+    #: `NeighbourList.info` of the start-state queries (skin, builds, reuses); not written
+    neighbours: dict = field(default_factory=dict)
 
 
 def step_indices(n_frames: int, frames=None) -> np.ndarray:
@@ -253,7 +255,7 @@ def deform_sequence(
         "frames": "all" if frames is None else f"{frames[0] if frames[0] is not None else ''}:{frames[1] if frames[1] is not None else ''}",
         "per_vertex": bool(per_vertex),
     }
-    return DeformOutput(steps=out, options=options, groups=groups)
+    return DeformOutput(steps=out, options=options, groups=groups, neighbours={} if nl is None else dict(nl.info))
 
 
 @dataclass
