@@ -24,6 +24,7 @@ _LAZY = {
     "ccd_vertex_face": ("penfree.core.contact.ccd", "ccd_vertex_face"),
     "verify_step": ("penfree.core.verify.path", "verify_step"),
     "trust_region_bounds": ("penfree.core.trust.bounds", "trust_region_bounds"),
+    "NeighbourList": ("penfree.core.contact.neighbours", "NeighbourList"),
 }
 
 __all__ = [

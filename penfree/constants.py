@@ -43,10 +43,13 @@ FIT_PRECISION_FACTOR = 16.0
 AUTO_MODEL_ATOL_REL = 1e-6
 
 #: Fit kernels run their fixed chunks in parallel only from this many vertices
-#: on (same chunks, same summation order, so the same bits): below it, waking
-#: threads (~10-50 us, ms on a loaded machine) costs more than the ~5 ns per
-#: vertex of a serial pass (measured in benchmarks/bench_fit.py).
-PARALLEL_MIN_VERTICES = 16384
+#: on (same chunks, same summation order, so the same bits). A serial pass costs
+#: ~2.2 ns per vertex (0.14 ms at 64K); a parallel region saves a third of that
+#: on an idle machine but, with a core held by another process, waits for a late
+#: thread: mean fit_step at 64K 1-15 ms parallel vs 0.4-0.8 ms serial
+#: (benchmarks/bench_contention.py). Sub-millisecond regions therefore stay
+#: serial: parallel from ~1 ms of serial work on.
+PARALLEL_MIN_VERTICES = 1 << 19
 
 # --- projection and certificate (SPEC section 5) -----------------------------
 #: Upper clamp of singular values in the ``svd`` projection (the original

@@ -26,7 +26,7 @@ STAGE_DEPS = {
     "trust": {"contact"},
 }
 #: Packages that may import the orchestration (penfree.core.pipeline).
-ORCHESTRATION_CALLERS = ("penfree.core.pipeline", "penfree.report", "penfree.cli")
+ORCHESTRATION_CALLERS = ("penfree.core.pipeline", "penfree.report", "penfree.scaleout", "penfree.cli")
 
 
 def _module_names():

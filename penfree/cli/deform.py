@@ -11,14 +11,14 @@ from ..constants import MODELS, PROJECTIONS
 from ..errors import InputError
 from .options import (
     FiniteFloat, Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames,
-    contact_radius_option, set_threads, thickness_option, threads_option, usd_options,
+    contact_radius_option, scaleout_options, set_threads, thickness_option, threads_option, usd_options,
 )
 
 
 @click.command("deform")
-@click.argument("input_path", metavar="IN", type=click.Path(dir_okay=True))
-@click.option("-o", "--output", "output_path", required=True, type=click.Path(dir_okay=False),
-              help="Result file (HDF5) to write.")
+@click.argument("input_paths", metavar="IN...", nargs=-1, required=True, type=click.Path(dir_okay=True))
+@click.option("-o", "--output", "output_path", required=True, type=click.Path(),
+              help="Result file (HDF5) to write; with several inputs a directory (<dir>/<stem>.h5 each).")
 @click.option("--model", type=click.Choice(MODELS + ("auto", "per-component")), default="auto",
               show_default=True,
               help="Map family fitted toward the constant-velocity prediction; auto: the certified "
@@ -46,8 +46,10 @@ from .options import (
 @click.option("--format", "in_format", default=None, help="Input format (default: from the extension).")
 @usd_options
 @json_option
-def command(input_path, output_path, model, projection, margin, thickness, contact_radius, frames, weights_name,
-            threads, overwrite, per_vertex, with_stats, check_start, in_format, usd_prims, usd_obstacles, as_json):
+@scaleout_options
+def command(input_paths, output_path, model, projection, margin, thickness, contact_radius, frames, weights_name,
+            threads, overwrite, per_vertex, with_stats, check_start, in_format, usd_prims, usd_obstacles, as_json,
+            workers, scheduler):
     """Fit, certify and apply a global affine map to every step of IN.
 
     Each step s moves frame s toward the prediction 2 x^s - x^(s-1); the straight path
@@ -56,7 +58,23 @@ def command(input_path, output_path, model, projection, margin, thickness, conta
     from ..core.pipeline.deform import deform_sequence, summarize_steps
     from ..formats import check_outputs, input_files, read_sequence
     from ..formats.result import write_result
+    from ..scaleout import is_scaleout
 
+    if is_scaleout(input_paths, workers, scheduler):  # several inputs / Dask: penfree.scaleout
+        if weights_name or usd_prims or usd_obstacles:
+            raise InputError("--weights, --prim and --obstacle are not supported with several inputs, "
+                             "--workers or --scheduler")
+        from . import scaleout
+
+        opts = dict(model=model, projection=projection, margin=margin, thickness=thickness,
+                    contact_radius=contact_radius, per_vertex=per_vertex, check_start=check_start,
+                    frames=parse_frames(frames), format=in_format)
+        return scaleout.deform(input_paths, output_path, opts, overwrite=overwrite, with_stats=with_stats,
+                               workers=workers, scheduler=scheduler, threads=threads, as_json=as_json)
+    input_path = input_paths[0]
+    if os.path.isdir(output_path):
+        raise InputError(f"-o {output_path} is a directory; give a result file name (a directory only with "
+                         f"several inputs)")
     from ..formats.atomic import check_file_name
 
     check_file_name(output_path)

@@ -113,3 +113,13 @@ class Progress:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def scaleout_options(f):
+    """``--workers N`` and ``--scheduler ADDRESS`` (several inputs run on Dask)."""
+    f = click.option("--scheduler", default=None, metavar="ADDRESS",
+                     help="Run on an existing Dask cluster (e.g. tcp://host:8786). Needs penfree[dask].")(f)
+    f = click.option("--workers", type=click.IntRange(min=1), default=None,
+                     help="Run on a local Dask cluster of N worker processes (several inputs: default all "
+                          "cores). Needs penfree[dask]; outputs equal a serial run.")(f)
+    return f

@@ -7,13 +7,14 @@ import click
 from ..constants import DEFAULT_CD_SHARE, DEFAULT_FRAME_MS, DEFAULT_GAMMA
 from ..errors import InputError
 from .options import (
-    FiniteFloat, Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames, set_threads,
+    FiniteFloat, Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames, scaleout_options,
+    set_threads,
     threads_option,
 )
 
 
 @click.command("report")
-@click.argument("files", nargs=-1, required=True, metavar="FILE...", type=click.Path(dir_okay=False))
+@click.argument("files", nargs=-1, required=True, metavar="FILE...", type=click.Path(dir_okay=True))
 @click.option("-o", "--output", "outdir", required=True, type=click.Path(file_okay=False),
               help="Report directory to write (report.md, report.json, *.png).")
 @overwrite_option
@@ -36,8 +37,9 @@ from .options import (
               help="Check: compare with a stored report.json (needs --max-regression).")
 @click.option("--max-regression", type=FiniteFloat(min=0.0), default=None, metavar="PCT",
               help="Check: K_1pct, projected speedup and hit rate regress by at most PCT percent vs --baseline.")
+@scaleout_options
 def command(files, outdir, overwrite, cd_share, frame_ms, replay, no_ladder, no_plots, frames, threads, as_json,
-            fail_if_uncertified, min_speedup, min_hit_rate_gain, baseline_path, max_regression):
+            fail_if_uncertified, min_speedup, min_hit_rate_gain, baseline_path, max_regression, workers, scheduler):
     """Report trust-region statistics of `penfree deform` outputs, with optional CI checks.
 
     Exit status: 0 all checks passed, 1 a check failed (the report is still written),
@@ -54,6 +56,11 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, no_ladder, no_
 
     if (baseline_path is None) != (max_regression is None):
         raise InputError("--baseline and --max-regression go together; give both or neither")
+    from ..scaleout import expand_inputs
+
+    # Several plain files run here as before; directories and globs expand; Dask on request.
+    files = expand_inputs(files, missing_ok=True)
+    scale = workers is not None or scheduler is not None
     check_report_dir(outdir, overwrite, inputs=list(files) + ([baseline_path] if baseline_path else []))
     frame_slice = parse_frames(frames)
     set_threads(threads)
@@ -61,7 +68,12 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, no_ladder, no_
     results = [select_steps(open_result(path), frame_slice) for path in files]  # all inputs checked first
 
     reports = []
-    for path, res in zip(files, results):
+    if scale:  # several inputs / Dask: one task per file (penfree.scaleout)
+        from . import scaleout
+
+        opts = dict(frames=frame_slice, cd_share=cd_share, frame_ms=frame_ms, replay=replay, ladder=not no_ladder)
+        files, reports = scaleout.report_entries(files, opts, workers=workers, scheduler=scheduler, threads=threads)
+    for path, res in zip(files, results if not scale else ()):
         work = res.n_steps * ((stored_stats(res, replay) is None) + (not no_ladder))
         with Progress(work, f"report {os.path.basename(path)}") as bar:
             reports.append(make_file_report(path, res, cd_share=cd_share, frame_ms=frame_ms, replay=replay,

@@ -5,7 +5,7 @@ import click
 from ..constants import DEFAULT_MAX_PAIRS
 from ..errors import InputError
 from .options import (
-    Progress, echo_json, frames_option, json_option, parse_frames, set_threads,
+    Progress, echo_json, frames_option, json_option, parse_frames, scaleout_options, set_threads,
     thickness_option, threads_option,
 )
 
@@ -51,7 +51,7 @@ def _step_line(step):
 
 
 @click.command("verify")
-@click.argument("path", metavar="FILE", type=click.Path(dir_okay=True))
+@click.argument("paths", metavar="FILE...", nargs=-1, required=True, type=click.Path(dir_okay=True))
 @thickness_option
 @frames_option
 @threads_option
@@ -65,7 +65,8 @@ def _step_line(step):
 @click.option("--strict", is_flag=True,
               help="Deform results: a start state with pre-existing intersections fails its step "
                    "(default: reported, OK when the path leaves them unchanged).")
-def command(path, thickness, frames, threads, as_json, max_pairs, mode, strict):
+@scaleout_options
+def command(paths, thickness, frames, threads, as_json, max_pairs, mode, strict, workers, scheduler):
     """Check that no two non-adjacent primitives come within THICKNESS along each step.
 
     A deform result is checked from positions[frame] to steps/deformed (plus the exact
@@ -76,7 +77,18 @@ def command(path, thickness, frames, threads, as_json, max_pairs, mode, strict):
     """
     from ..core.pipeline.verification import n_steps, verify_file
 
+    from ..scaleout import is_scaleout
+
     frame_slice = parse_frames(frames)
+    if is_scaleout(paths, workers, scheduler):  # several inputs / Dask: penfree.scaleout
+        from . import scaleout
+
+        if not scaleout.verify(paths, thickness=thickness, frames=frame_slice, mode=mode, max_pairs=max_pairs,
+                               workers=workers, scheduler=scheduler, threads=threads, as_json=as_json,
+                               step_line=_step_line, strict=strict):
+            click.get_current_context().exit(1)
+        return
+    path = paths[0]
     set_threads(threads)
     with Progress(n_steps(path, frame_slice), "verify") as bar:
         report = verify_file(path, thickness=thickness, frames=frame_slice, mode=mode,

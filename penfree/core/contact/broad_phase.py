@@ -41,6 +41,7 @@ from numba import njit, prange
 
 from ...errors import InputError
 from .distance import edge_edge_sq, point_edge_sq, point_triangle_sq
+from ..parallel import parallel_kernel
 from ..topology import as_positions, as_topology
 
 #: A box covering more cells than this is "big" and tested by brute force
@@ -62,6 +63,10 @@ _DENSE_FACTOR = 8
 _CELL_FACTOR = 2.0
 
 MODE_COUNT, MODE_FILL, MODE_MIN = 0, 1, 2
+
+#: Query rows below which the row passes run serially: a row costs ~0.3-1 us (a few
+#: cells scanned), so 2048 rows are ~1 ms of serial work.
+_PARALLEL_MIN_ROWS = 2048
 
 
 @njit(cache=True)
@@ -250,8 +255,7 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
     return n
 
 
-@njit(cache=True, parallel=True)
-def _count_rows(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
+def _count_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
                 origin, h, dims, bits, boff, ent_key, ent_id, ent_box, bigB, counts):
     J = np.empty(0, dtype=np.int64)
     V = np.empty((0, 3))
@@ -262,8 +266,7 @@ def _count_rows(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
                                bigB, J, 0, V, dmin)
 
 
-@njit(cache=True, parallel=True)
-def _fill_rows(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
+def _fill_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
                origin, h, dims, bits, boff, ent_key, ent_id, ent_box, bigB, offsets, I, J):
     V = np.empty((0, 3))
     dmin = np.empty(0)
@@ -292,8 +295,7 @@ def _sort_segment(J, a, b):
         J[m + 1] = v
 
 
-@njit(cache=True, parallel=True)
-def _min_rows(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
+def _min_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
               origin, h, dims, bits, boff, ent_key, ent_id, ent_box, bigB, V, partial):
     # Chunk c owns rows [c m / C, (c + 1) m / C) and writes only partial[c]:
     # no shared writes; min is exact, so the result is thread-count independent.
@@ -305,6 +307,14 @@ def _min_rows(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
             _visit_row(MODE_MIN, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
                        loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box,
                        bigB, J, 0, V, partial[c])
+
+
+# Serial and parallel builds of the row passes (each row / chunk writes only its own
+# slots, so both give the same bits), chosen per call by the number of rows: a small
+# query never waits for a descheduled thread (penfree.core.parallel).
+_count_rows = parallel_kernel(_count_rows_py, "_bp_count_rows", _PARALLEL_MIN_ROWS)
+_fill_rows = parallel_kernel(_fill_rows_py, "_bp_fill_rows", _PARALLEL_MIN_ROWS)
+_min_rows = parallel_kernel(_min_rows_py, "_bp_min_rows", _PARALLEL_MIN_ROWS)
 
 
 @njit(cache=True)
@@ -396,12 +406,13 @@ class _Plan:
         if self.empty:
             return np.zeros((0, 2), dtype=np.int64)
         counts = np.empty(self.loA.shape[0], dtype=np.int64)
-        _count_rows(*self._args(), counts)
+        n = self.loA.shape[0]
+        _count_rows(n, *self._args(), counts)
         offsets = np.zeros(counts.shape[0] + 1, dtype=np.int64)
         np.cumsum(counts, out=offsets[1:])
         I = np.empty(offsets[-1], dtype=np.int64)
         J = np.empty(offsets[-1], dtype=np.int64)
-        _fill_rows(*self._args(), offsets, I, J)
+        _fill_rows(n, *self._args(), offsets, I, J)
         return np.ascontiguousarray(np.stack([I, J], axis=1))
 
     def min_sq_into(self, V, partial):
@@ -410,7 +421,7 @@ class _Plan:
         Chunk c of the rows writes only partial[c]; reduce with min afterwards.
         """
         if not self.empty:
-            _min_rows(*self._args(), V, partial)
+            _min_rows(self.loA.shape[0], *self._args(), V, partial)
 
 
 # --- public functions ---------------------------------------------------------

@@ -126,14 +126,19 @@ def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thic
             progress()
     out["model"] = out["model"].astype(str)
     out["projection"] = out["projection"].astype(str)
-    options = {
-        "model": model, "projection": projection, "margin": m, "thickness": thickness,
+    options = run_options(model, projection, m, thickness, contact_radius, frames, per_vertex)
+    return DeformOutput(steps=out, options=options, groups=strategy.groups())
+
+
+def run_options(model, projection, margin, thickness, contact_radius, frames, per_vertex) -> dict:
+    """The ``options`` a result records (`margin` the required one, `frames` a slice or None)."""
+    return {
+        "model": model, "projection": projection, "margin": margin, "thickness": thickness,
         "contact_radius": contact_radius,
         "frames": "all" if frames is None else f"{frames[0] if frames[0] is not None else ''}:"
                                                f"{frames[1] if frames[1] is not None else ''}",
         "per_vertex": bool(per_vertex),
     }
-    return DeformOutput(steps=out, options=options, groups=strategy.groups())
 
 
 def _allocate(seq, S_idx, per_vertex) -> dict:

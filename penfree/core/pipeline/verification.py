@@ -16,9 +16,11 @@ from ...constants import DEFAULT_MAX_PAIRS
 from ...errors import InputError
 from ..contact.obstacles import as_verify_obstacles
 from ..fit.certificate import certify
+from ..topology import as_topology, referenced_vertices, scene_edges
 from ..verify.affine import verify_affine_step
 from ..verify.gate import margin_rule
 from ..verify.path import VerifyResult, check_thickness, verify_step
+from ..verify.reuse import result_lists
 
 MODES = ("auto", "ccd", "certificate")
 
@@ -174,6 +176,7 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         raise InputError(f"{res.origin} holds no steps/deformed to verify in {res.origin}:/steps/deformed")
     claimed = st.get("certificate_margin")
     rep = VerifyReport(res.origin, "result", h, mode)
+    nl = _result_lists(seq, mode)
     for k, s in enumerate(np.asarray(st["frame"]).tolist()):
         if s not in sel:
             continue
@@ -185,7 +188,8 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         cert = all(certify(A_c, m) for A_c in maps)
         r = None
         if mode != "ccd" and not seq.obstacles and not per_component:
-            r = verify_affine_step(x, x_def, A, b, edges=seq.edges, faces=seq.faces, thickness=h, max_pairs=max_pairs)
+            r = verify_affine_step(x, x_def, A, b, edges=seq.edges, faces=seq.faces, thickness=h, max_pairs=max_pairs,
+                                   neighbours=nl)
         if r is None and mode == "certificate":
             r = VerifyResult(ok=False, start_ok=True, min_separation=0.0, method="certificate")
         if r is None:
@@ -197,6 +201,23 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         if progress is not None:
             progress()
     return rep
+
+
+def _result_lists(seq, mode):
+    """One neighbour list for the start states of all steps (`verify.reuse`), or None.
+
+    None for CCD-only runs, with obstacles (their steps take the full CCD), and for
+    scenes with isolated vertices, whose pair sets differ between the proximity
+    stages (the fresh passes handle those).
+    """
+    if mode == "ccd" or seq.obstacles or seq.kind == "points":
+        return None
+    n = seq.n_vertices
+    F = as_topology(seq.faces, 3, n, "faces") if seq.faces is not None else np.zeros((0, 3), np.int64)
+    E = scene_edges(as_topology(seq.edges, 2, n, "edges") if seq.edges is not None else np.zeros((0, 2), np.int64), F)
+    if not referenced_vertices(n, F, E).all():
+        return None
+    return result_lists(E, F)
 
 
 def _component_maps(res, k):

@@ -250,6 +250,28 @@ def _unpack(source, deformed, frames, edges, faces, thickness, contact_radius=No
             list(obstacles or ()))
 
 
+def listed_bounds(positions, edges, faces, thickness, gamma):
+    """``bounds_fn(x, r_q)``: `trust_region_bounds` over one reused `NeighbourList`.
+
+    The bounds equal `trust_region_bounds` bit for bit (`penfree.core.contact.neighbours`);
+    the list is shared by all states a report visits (x, x_def, replay states).
+    """
+    from ..contact.neighbours import NeighbourList
+    from .bounds import _radius, scene_arrays
+
+    _, E, F = scene_arrays(np.asarray(positions[0]), edges, faces)
+    nl = NeighbourList(E, F)
+    h = _radius(thickness, "thickness")
+    gamma = _radius(gamma, "gamma")
+
+    def bounds_fn(x, r_q):
+        d = nl.separations(np.ascontiguousarray(x, dtype=np.float64), r_q)
+        return gamma * np.maximum(0.0, d - h)
+
+    bounds_fn.neighbours = nl
+    return bounds_fn
+
+
 def compute_stats(source=None, *, positions=None, deformed=None, frames=None, edges=None, faces=None,
                   thickness=None, gamma=DEFAULT_GAMMA, replay=False, replay_cap=DEFAULT_REPLAY_CAP,
                   bounds_fn=None, progress=None, contact_radius=None, obstacles=None) -> dict:
@@ -304,11 +326,14 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
         source, deformed, frames, edges, faces, thickness, contact_radius, obstacles)
     frame_now = [0]  # kinematic obstacles are held at the step's frame
     if bounds_fn is None:
-        from .bounds import trust_region_bounds
+        if obstacles:
+            from .bounds import trust_region_bounds
 
-        def bounds_fn(x, r_q):
-            return trust_region_bounds(x, edges=edges, faces=faces, thickness=thickness, gamma=gamma,
-                                       query_radius=r_q, obstacles=obstacles, frame=frame_now[0])
+            def bounds_fn(x, r_q):
+                return trust_region_bounds(x, edges=edges, faces=faces, thickness=thickness, gamma=gamma,
+                                           query_radius=r_q, obstacles=obstacles, frame=frame_now[0])
+        else:  # the scene's own pairs only: one neighbour list serves every state the report visits
+            bounds_fn = listed_bounds(positions, edges, faces, thickness, gamma)
 
     T, N = positions.shape[0], positions.shape[1]
     S = frames.shape[0]

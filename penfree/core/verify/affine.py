@@ -13,6 +13,7 @@ from ...constants import DEFAULT_MAX_PAIRS, UNIT_ROUNDOFF, VERIFY_MARGIN_LADDER
 from ...errors import InputError
 from ..fit.certificate import certify, fast_margin_bound
 from .gate import deviation_bound
+from .reuse import listed_start_pass
 from .path import VerifyResult, _bodies, _Collector, _edge_face, _pairs_self, check_thickness
 
 
@@ -29,7 +30,7 @@ def _margin(A, need_positive):
 
 
 def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0.0,
-                       max_pairs=DEFAULT_MAX_PAIRS):
+                       max_pairs=DEFAULT_MAX_PAIRS, neighbours=None):
     """Prove an affine step safe from its certificate; None when the proof does not apply.
 
     Parameters
@@ -42,6 +43,9 @@ def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0
     b : (3,) float64
     edges, faces, thickness, max_pairs
         As in `verify_step`.
+    neighbours : NeighbourList, optional
+        Reused across the steps of a result (`penfree.core.verify.reuse.result_lists`,
+        built over this scene's E and F): the static proximity pass is answered from it.
 
     Returns
     -------
@@ -80,9 +84,10 @@ def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0
     if not np.isfinite(g):
         return None
     col = _Collector()
-    if len(scene.F):
-        _edge_face(col, "ef", scene.x_t0, scene.E, scene.F)
-    _pairs_self(col, scene, g, static=True)
+    if neighbours is None or not listed_start_pass(col, neighbours, scene.x_t0, g):
+        if len(scene.F):
+            _edge_face(col, "ef", scene.x_t0, scene.E, scene.F)
+        _pairs_self(col, scene, g, static=True)
     if col.kinds:
         return None  # a start pair within g (maybe a real violation): full CCD decides
     sep = thickness if m == 0.0 else max(thickness, m * g / (1.0 + 1e-9) - 2.0 * delta)

@@ -1,0 +1,101 @@
+"""Benchmark: fit_step at 64K vertices with one core held by another process (issue 13).
+
+One process measures, for float32 and float64: ``fit_step`` as dispatched (the
+default), with the serial kernels forced and with the parallel kernels forced, and the
+memory floor (one ``np.add(x_prev, x, out=buf)`` pass); first on the machine as it is
+("idle"), then with a background busy process spinning on one core ("loaded"). Ratios
+are formed within one condition (fit / floor) and across the two (loaded / idle).
+
+    .venv/bin/python benchmarks/bench_contention.py [--repeats 200] [--vertices 65536] [--busy 1]
+
+The machine the figures in BENCHMARKS.md come from is shared: "idle" means "as loaded as
+it was", which is why the medians of many short repeats and ratios are reported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+
+import numba
+import numpy as np
+
+import penfree
+from penfree import constants as K
+
+from bench_fit import reference_or_own
+
+
+def median_time(fn, repeats):
+    fn()
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts)), float(np.mean(ts))
+
+
+def variants(x_prev, x, out, repeats):
+    """{name: (median, p90)} for the default dispatch, serial and parallel kernels, and the floor."""
+    res = {}
+    default = K.PARALLEL_MIN_VERTICES
+    for name, threshold in (("default", default), ("serial", 1 << 62), ("parallel", 1)):
+        K.PARALLEL_MIN_VERTICES = threshold
+        try:
+            res[name] = median_time(lambda: penfree.fit_step(x_prev, x, out=out), repeats)
+        finally:
+            K.PARALLEL_MIN_VERTICES = default
+    buf = np.empty_like(x)
+    res["floor"] = median_time(lambda: np.add(x_prev, x, out=buf), repeats)
+    return res
+
+
+def busy(n):
+    code = "import time\nt = time.time()\nwhile time.time() - t < 600: pass\n"
+    procs = [subprocess.Popen([sys.executable, "-c", code]) for _ in range(n)]
+    time.sleep(0.5)
+    return procs
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--vertices", type=int, default=65536)
+    ap.add_argument("--repeats", type=int, default=200)
+    ap.add_argument("--busy", type=int, default=1, help="background busy processes in the loaded run")
+    args = ap.parse_args(argv)
+    print(f"penfree {penfree.__version__}, numba {numba.__version__} (threads {numba.get_num_threads()}), N = {args.vertices}, median of {args.repeats}; "
+          f"PARALLEL_MIN_VERTICES = {K.PARALLEL_MIN_VERTICES}")
+    x_prev64, x64, source = reference_or_own("rods", args.vertices)
+    rows = []
+    for dtype in (np.float32, np.float64):
+        x_prev, x = x_prev64.astype(dtype), x64.astype(dtype)
+        out = np.empty_like(x)
+        idle = variants(x_prev, x, out, args.repeats)
+        procs = busy(args.busy)
+        try:
+            loaded = variants(x_prev, x, out, args.repeats)
+        finally:
+            for p in procs:
+                p.kill()
+                p.wait()
+        rows.append((np.dtype(dtype).name, idle, loaded))
+    hdr = (f"{'dtype':<8} {'kernel':<9} {'idle':>9} {'mean':>9} {'/floor':>7} {'loaded':>9} {'mean':>9} {'/floor':>7} "
+           f"{'loaded/idle':>12} {'loaded/idle default':>19}")
+    print(hdr)
+    print("-" * len(hdr))
+    for dtype, idle, loaded in rows:
+        for name in ("default", "serial", "parallel"):
+            (ti, pi), (tl, pl) = idle[name], loaded[name]
+            print(f"{dtype:<8} {name:<9} {ti*1e3:7.3f}ms {pi*1e3:7.3f}ms {ti/idle['floor'][0]:6.2f}x "
+                  f"{tl*1e3:7.3f}ms {pl*1e3:7.3f}ms {tl/loaded['floor'][0]:6.2f}x {tl/ti:11.2f}x "
+                  f"{tl/idle['default'][0]:18.2f}x")
+        print(f"{dtype:<8} {'floor':<9} {idle['floor'][0]*1e3:7.3f}ms {'':>9} {'':>7} {loaded['floor'][0]*1e3:7.3f}ms")
+    print("median times; /floor and loaded/idle are ratios of medians; mean shows the stalls of late threads")
+    print(f"(scene: {source}; loaded = {args.busy} busy process(es) on a {__import__('os').cpu_count()}-core machine)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,74 @@
+"""Benchmark: `penfree deform` on Dask, 2 local workers against 1 (issue 13), same process.
+
+Writes ``--files`` recordings of the 64K reference scene (``samples/generate.py``,
+``--frames`` frames each, float32) into a temporary directory, then runs the several-inputs
+path (`penfree.scaleout.deform_many`) with ``--workers 1`` and ``--workers 2`` (cluster
+start-up included: it is what a user waits for) and checks that both outputs are equal,
+dataset by dataset (wall times excepted).
+
+    .venv/bin/python benchmarks/bench_scaleout.py [--files 4] [--frames 50] [--scene yarn-bundle] [--model auto]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+
+import h5py
+import numpy as np
+
+from penfree.scaleout import deform_many
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "samples"))
+import generate  # noqa: E402
+
+
+def datasets(path):
+    out = {}
+    with h5py.File(path, "r") as f:
+        f.visititems(lambda n, o: out.__setitem__(n, o[()]) if isinstance(o, h5py.Dataset) else None)
+    return out
+
+
+def same(a, b):
+    return np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--files", type=int, default=4)
+    ap.add_argument("--frames", type=int, default=50)
+    ap.add_argument("--vertices", type=int, default=65536)
+    ap.add_argument("--scene", default="yarn-bundle")
+    ap.add_argument("--model", default="auto")
+    args = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        src = os.path.join(tmp, "in")
+        os.makedirs(src)
+        for k in range(args.files):
+            pos, topo, attrs = generate.generate(args.scene, vertices=args.vertices, frames=args.frames, seed=k)
+            generate.write_h5(os.path.join(src, f"rec{k}.h5"), pos, topo, attrs)
+        options = dict(model=args.model, projection="auto", margin=None, thickness=None, per_vertex=False,
+                       frames=None, format=None)
+        times = {}
+        for w in (1, 2):
+            t0 = time.perf_counter()
+            deform_many([src], os.path.join(tmp, f"out{w}"), options=options, workers=w, threads=1)
+            times[w] = time.perf_counter() - t0
+        equal = all(
+            all(same(a[k], b[k]) for k in a if k != "steps/time_fit_s")
+            for a, b in ((datasets(os.path.join(tmp, "out1", f"rec{k}.h5")),
+                          datasets(os.path.join(tmp, "out2", f"rec{k}.h5"))) for k in range(args.files)))
+    steps = args.files * (args.frames - 1)
+    print(f"{args.files} x {args.scene} ({args.vertices} vertices x {args.frames} frames), --model {args.model}, "
+          f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    for w, t in times.items():
+        print(f"  --workers {w}: {t:7.1f} s ({steps / t:5.1f} steps/s)")
+    print(f"  speedup 2 vs 1 workers: {times[1] / times[2]:.2f}x; outputs equal: {equal}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,66 @@
+"""Per-vertex proximity of a static state: the smallest distance from each vertex's
+primitives to the non-adjacent primitives around them, within a radius.
+
+The broad phase finds the pairs whose static boxes, inflated by half the radius,
+overlap (every pair closer than the radius is among them: the Euclidean distance is
+at least the per-axis box gap), and the pair distances are folded into per-vertex
+minima inside the same parallel pass, so no candidate list is ever stored. The
+trust-region bounds (`penfree.core.trust.bounds`) and the neighbour lists
+(`penfree.core.contact.neighbours`) are built on it.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from ...constants import REDUCTION_CHUNKS
+from ..topology import referenced_vertices
+from .broad_phase import fold_min_sq
+
+#: Cap on the per-chunk partial minima, in float64 entries (32 MiB).
+_PARTIAL_ENTRIES_MAX = 1 << 22
+
+
+def per_vertex_separation(x, E, F, radius):
+    """Per-vertex smallest distance to non-adjacent primitives, capped at `radius`.
+
+    Parameters
+    ----------
+    x : (N, 3) float64, C-contiguous
+    E : (M, 2) int64
+        Edges (for a triangle scene: the edges of the faces).
+    F : (K, 3) int64
+        Faces; empty for a segment scene.
+    radius : float >= 0
+
+    Returns
+    -------
+    d : (N,) float64
+        ``d[v] = min(radius, terms)`` with the terms of SPEC section 7:
+        vertex-face distances fold into the vertex and into the face's three
+        vertices, edge-edge distances (edges sharing no vertex) into the four
+        vertices. A vertex in no primitive, or with nothing within `radius`,
+        gets `radius`.
+
+    Notes
+    -----
+    Inputs are assumed validated (`trust_region_bounds` does it). Rows are
+    split into chunks, each with its own row of partial minima, reduced with
+    ``min`` (exact): the result does not depend on the number of threads.
+    """
+    n = x.shape[0]
+    inflation = 0.5 * radius
+    # min is exact, so the chunk count may follow the thread count (a few
+    # chunks per thread for balance) without changing a single bit.
+    n_chunks = max(1, min(REDUCTION_CHUNKS, 4 * numba.get_num_threads(),
+                          _PARTIAL_ENTRIES_MAX // max(n, 1)))
+    partial = np.full((n_chunks, n), np.inf)
+    if E.shape[0]:
+        fold_min_sq(x, E, E, inflation, partial, self_query=True)
+    if F.shape[0]:
+        used = referenced_vertices(n, F, E)
+        Q = np.ascontiguousarray(np.flatnonzero(used).astype(np.int64)[:, None])
+        fold_min_sq(x, Q, F, inflation, partial, self_query=False)
+    d = np.sqrt(partial.min(axis=0))
+    return np.minimum(d, radius)

@@ -1,0 +1,73 @@
+"""Serial or parallel: one rule, by the size of the work, for every dual-build kernel.
+
+A Numba parallel region costs tens of microseconds on an idle machine, and on a
+loaded one it waits for every worker thread to be scheduled: with another process
+holding one of two cores, a 0.1 ms region took 3-5 ms (issue 13). Kernels whose
+loops write only their own slots (or reduce over fixed chunks) are therefore
+compiled twice from one source, and `parallel_kernel` runs the parallel build
+only when the work is large enough to pay for a region even when a thread is
+late. Both builds give the same bits, so the choice never changes a result.
+"""
+
+from __future__ import annotations
+
+import types
+
+import numba
+from numba import njit
+
+#: Work items (pairs, vertices, ...) below which a parallel region does not pay.
+#: At ~20-50 ns per item, 1<<15 items is ~1 ms of serial work: a descheduled
+#: worker (a few ms on a loaded 2-core machine) would cost more than it saves.
+PARALLEL_MIN_WORK = 1 << 15
+
+
+def named(fn, name):
+    """A copy of `fn` under another qualified name.
+
+    Numba's on-disk cache is keyed by the qualified name: each compiled variant
+    gets its own, so the serial and parallel builds never share a cache entry.
+    """
+    f = types.FunctionType(fn.__code__, fn.__globals__, name, fn.__defaults__, fn.__closure__)
+    f.__qualname__ = name
+    return f
+
+
+def use_parallel(work: int, min_work: int = PARALLEL_MIN_WORK) -> bool:
+    """True when `work` items justify a parallel region (and there is more than one thread)."""
+    return work >= min_work and numba.get_num_threads() > 1
+
+
+class _Dual:
+    """Serial and parallel builds of one kernel; called as ``kernel(work, *args)``."""
+
+    def __init__(self, fn, name, min_work, jit_options):
+        self.serial = njit(cache=True, **jit_options)(named(fn, name + "_serial"))
+        self.parallel = njit(cache=True, parallel=True, **jit_options)(named(fn, name + "_parallel"))
+        self.min_work = min_work
+
+    def __call__(self, work, *args):
+        return (self.parallel if use_parallel(work, self.min_work) else self.serial)(*args)
+
+
+def parallel_kernel(fn, name, min_work=PARALLEL_MIN_WORK, **jit_options):
+    """Compile `fn` (a function with ``prange`` loops) serially and in parallel.
+
+    Parameters
+    ----------
+    fn : function
+        Kernel source; its loops must give the same bits in both builds (each
+        iteration writes only its own slot, or reduces over fixed chunks).
+    name : str
+        Unique base name for Numba's cache.
+    min_work : int
+        Work below which the serial build runs.
+    **jit_options
+        Extra ``njit`` options (never ``fastmath`` for distance kernels).
+
+    Returns
+    -------
+    callable
+        ``kernel(work, *args)``.
+    """
+    return _Dual(fn, name, min_work, jit_options)

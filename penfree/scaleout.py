@@ -1,0 +1,487 @@
+"""Scale-out on Dask: many recordings, or one long recording, without a job script.
+
+`penfree deform`, `verify` and `report` accept several inputs (files, directories,
+globs); with several inputs, ``--workers N`` or ``--scheduler ADDRESS`` the work runs on
+`dask.distributed` (an optional extra: ``pip install 'penfree[dask]'``).
+
+Partitioning. ``deform`` and ``verify`` split each file into ranges of steps; a step `s`
+reads frames ``s - 1``, ``s`` and ``s + 1`` only, so ranges of steps need overlapping
+frames and nothing else: every task reads its file and runs the library on its steps
+with a frame slice (global frame indices throughout). Each ``deform`` range writes a
+partial result beside the output (``.<stem>.parts/``, each part written under a
+temporary name and renamed); when all ranges of a file are done the driver merges them
+in frame order into the layout of a serial run and writes it atomically, then removes
+the parts. ``report`` runs one task per file (statistics and ladder are per file).
+
+Results are those of a serial run, bit for bit: every step is computed by the same
+code from the same frames, and the per-step tables are merged in frame order (the
+selection table's candidate columns in order of first appearance, as a serial run
+orders them). One progress callback counts finished tasks; a failed task names its
+file and frame range.
+"""
+
+from __future__ import annotations
+
+import glob
+import math
+import os
+import shutil
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+
+#: Extensions a directory input expands to (the primary format).
+DIRECTORY_PATTERNS = ("*.h5", "*.hdf5")
+#: Tasks per worker the partitioner aims for (balance without tiny tasks).
+TASKS_PER_WORKER = 2
+#: A frame range holds at least this many steps (each task reads its whole file).
+MIN_STEPS_PER_TASK = 4
+
+DASK_MISSING = ("several inputs, --workers and --scheduler need Dask, which is not installed; "
+                "install it with: pip install 'penfree[dask]'")
+
+
+def require_dask():
+    """Import `dask.distributed`; InputError (exit 2) with the install line when absent."""
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        raise InputError(DASK_MISSING) from None
+    return distributed
+
+
+def expand_inputs(specs, missing_ok=False) -> list:
+    """Input files from files, directories and glob patterns, in a stable order.
+
+    A directory expands to its ``*.h5`` / ``*.hdf5`` files (sorted); a directory
+    without any is itself one input (a numbered mesh-file sequence). A pattern
+    expands to its sorted matches. Duplicates are dropped, first occurrence kept.
+    A path that does not exist is an InputError, or passed on with `missing_ok`
+    (for the reader to report in its own words).
+    """
+    out = []
+    for spec in specs:
+        spec = os.fspath(spec)
+        if os.path.isdir(spec):
+            found = sorted({p for pat in DIRECTORY_PATTERNS for p in glob.glob(os.path.join(glob.escape(spec), pat))})
+            out.extend(found or [spec])
+        elif os.path.exists(spec) or (missing_ok and not glob.has_magic(spec)):
+            out.append(spec)
+        elif glob.has_magic(spec):
+            found = sorted(glob.glob(spec))
+            if not found:
+                raise InputError(f"no file matches the pattern {spec!r}")
+            out.extend(found)
+        else:
+            raise InputError(f"no such file or directory: {spec}")
+    seen, unique = set(), []
+    for p in out:
+        key = os.path.realpath(p)
+        if key not in seen:
+            seen.add(key)
+            unique.append(p)
+    return unique
+
+
+def is_scaleout(specs, workers=None, scheduler=None) -> bool:
+    """True when the command should take the scale-out path."""
+    if workers is not None or scheduler is not None or len(specs) != 1:
+        return True
+    spec = os.fspath(specs[0])
+    if os.path.isdir(spec):
+        return any(glob.glob(os.path.join(glob.escape(spec), pat)) for pat in DIRECTORY_PATTERNS)
+    return not os.path.exists(spec) and glob.has_magic(spec)
+
+
+def output_paths(inputs, outdir) -> list:
+    """``<outdir>/<input stem>.h5`` per input; InputError when two stems collide."""
+    outs = [os.path.join(outdir, os.path.splitext(os.path.basename(os.path.normpath(p)))[0] + ".h5") for p in inputs]
+    if len(set(outs)) != len(outs):
+        dup = sorted({o for o in outs if outs.count(o) > 1})[0]
+        raise InputError(f"two inputs would write the same output {dup}; rename one of them")
+    return outs
+
+
+# --- partitioning ----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Task:
+    """One unit of work: a file and a half-open range ``[lo, hi)`` of its steps (None: all).
+
+    Steps are numbered as the library does: for a raw sequence and `deform`, step `s`
+    (1 <= s < T) goes from frame s - 1 to s (``kind="sequence"``); for `verify` of a raw
+    sequence, step `s` goes from frame s to s + 1 (``kind="path"``); for a result, `s` is
+    its ``steps/frame`` (``kind="result"``).
+    """
+
+    path: str
+    lo: int | None = None
+    hi: int | None = None
+    kind: str = "sequence"
+
+    def label(self) -> str:
+        return self.path if self.lo is None else f"{self.path} frames {self.lo}:{self.hi}"
+
+    def frames(self):
+        """The library's ``frames=(start, stop)`` slice selecting exactly these steps."""
+        if self.kind == "path":  # s -> s + 1 needs frame s + 1 selected too
+            return (self.lo, self.hi + 1)
+        return (self.lo, self.hi)
+
+
+def _steps_of(path, kind):
+    """(T, steps) of a file, or (None, None) when it is not HDF5 (one task then)."""
+    try:
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            T = int(f["positions"].shape[0])
+            if kind == "result":
+                return T, np.unique(np.asarray(f["steps/frame"][()], dtype=np.int64))
+    except Exception:  # not HDF5 (or unreadable here): the real reader reports it in the task
+        return None, None
+    return T, (np.arange(1, T) if kind == "sequence" else np.arange(0, T - 1))
+
+
+def _ranges(n, n_parts):
+    """Split range(n) into <= n_parts contiguous ranges of >= MIN_STEPS_PER_TASK."""
+    n_parts = max(1, min(n_parts, n // MIN_STEPS_PER_TASK))
+    cuts = [(k * n) // n_parts for k in range(n_parts + 1)]
+    return [(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+
+
+def plan(paths, n_workers, frames=None, kind="sequence") -> list:
+    """Tasks for `paths`: one per file, plus step ranges within a file when there are
+    fewer files than ``TASKS_PER_WORKER * n_workers`` (see `Task` for the kinds).
+
+    With a user frame slice, ranges are cut inside the selected steps; a raw sequence
+    to verify with a frame slice stays one task (its steps need both frames selected).
+    """
+    want = TASKS_PER_WORKER * max(1, n_workers)
+    per_file = max(1, math.ceil(want / max(1, len(paths))))
+    tasks = []
+    for p in paths:
+        T, steps = _steps_of(p, kind) if per_file > 1 else (None, None)
+        if steps is not None and frames is not None:
+            if kind == "path":
+                steps = None
+            else:
+                steps = steps[np.isin(steps, np.arange(T)[slice(*frames)])]
+        if steps is None or steps.size < 2 * MIN_STEPS_PER_TASK:
+            tasks.append(Task(p, kind=kind))
+            continue
+        for a, b in _ranges(steps.size, per_file):
+            tasks.append(Task(p, int(steps[a]), int(steps[b - 1]) + 1, kind))
+    return tasks
+
+
+# --- the cluster and the task loop -------------------------------------------------
+
+
+@contextmanager
+def client(workers=None, scheduler=None):
+    """A `distributed.Client`: on `scheduler`, else on a local cluster of `workers` processes."""
+    distributed = require_dask()
+    if scheduler is not None:
+        try:
+            c = distributed.Client(scheduler, timeout="10s")
+        except (OSError, TimeoutError) as exc:
+            raise InputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+        try:
+            yield c
+        finally:
+            c.close()
+        return
+    n = workers or os.cpu_count() or 1
+    # One thread per worker process: workers run Numba kernels themselves.
+    with distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                  silence_logs=40) as cluster, distributed.Client(cluster) as c:
+        yield c
+
+
+def n_workers_of(c) -> int:
+    return max(1, len(c.scheduler_info().get("workers", {})))
+
+
+def run_tasks(c, fn, tasks, args=(), progress=None) -> list:
+    """Run ``fn(task, *args)`` for every task on client `c`; results in task order.
+
+    A failed task raises InputError naming its file and range (the others are cancelled).
+    """
+    from distributed import as_completed
+
+    futures = [c.submit(fn, t, *args, pure=False, key=f"penfree-{k}-{os.getpid()}-{id(tasks)}")
+               for k, t in enumerate(tasks)]
+    index = {f.key: k for k, f in enumerate(futures)}
+    results = [None] * len(tasks)
+    try:
+        for fut in as_completed(futures):
+            k = index[fut.key]
+            try:
+                results[k] = fut.result()
+            except InputError as exc:
+                raise InputError(f"{tasks[k].label()}: {exc}") from None
+            except Exception as exc:  # a worker failure: name the task, no traceback
+                raise InputError(f"task failed on {tasks[k].label()}: {type(exc).__name__}: {exc}") from None
+            if progress is not None:
+                progress()
+    finally:
+        for f in futures:
+            f.cancel()
+    return results
+
+
+def _set_threads(threads):
+    if threads:
+        import numba
+
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
+# --- deform ------------------------------------------------------------------------
+
+
+def _parts_dir(out_path):
+    head, tail = os.path.split(out_path)
+    return os.path.join(head, f".{os.path.splitext(tail)[0]}.parts")
+
+
+def _flatten(prefix, d, out):
+    for k, v in d.items():
+        if isinstance(v, dict):
+            _flatten(f"{prefix}{k}/", v, out)
+        else:
+            out[f"{prefix}{k}"] = np.asarray(v)
+    return out
+
+
+def _unflatten(flat):
+    out = {}
+    for key, v in flat.items():
+        node = out
+        *heads, leaf = key.split("/")
+        for h in heads:
+            node = node.setdefault(h, {})
+        node[leaf] = v
+    return out
+
+
+def deform_task(task, out_path, options, with_stats, threads):
+    """Worker: deform the steps of `task`, write the partial result, return its path."""
+    from .core.pipeline.deform import deform_sequence
+    from .formats import read_sequence
+
+    _set_threads(threads)
+    seq = read_sequence(task.path, format=options.get("format"))
+    frames = options.get("frames") if task.lo is None else task.frames()
+    out = deform_sequence(seq, model=options["model"], projection=options["projection"], margin=options["margin"],
+                          thickness=options["thickness"], contact_radius=options.get("contact_radius"),
+                          frames=frames, per_vertex=options["per_vertex"],
+                          check_start=bool(options.get("check_start")) or with_stats)
+    groups = dict(out.groups)
+    if with_stats:
+        from .core.trust.stats import compute_stats
+
+        st = out.steps
+        groups["stats"] = compute_stats(positions=seq.positions, frames=st["frame"], deformed=st["deformed"],
+                                        edges=seq.edges, faces=seq.faces,
+                                        thickness=seq.thickness if options["thickness"] is None else options["thickness"],
+                                        contact_radius=seq.contact_radius if options.get("contact_radius") is None
+                                        else options["contact_radius"], obstacles=seq.obstacles)
+    flat = _flatten("steps/", out.steps, {})
+    _flatten("groups/", groups, flat)
+    parts = _parts_dir(out_path)
+    os.makedirs(parts, exist_ok=True)
+    name = os.path.join(parts, f"part-{int(out.steps['frame'][0]):010d}.npz")
+    tmp = name + f".tmp-{os.getpid()}.npz"
+    np.savez(tmp, **flat)
+    os.replace(tmp, name)
+    return name
+
+
+def merge_partials(parts) -> tuple:
+    """``(steps, groups)`` of a serial run from partial results in frame order."""
+    loaded = []
+    for p in parts:
+        with np.load(p, allow_pickle=False) as z:
+            loaded.append(_unflatten({k: z[k] for k in z.files}))
+    steps = {k: np.concatenate([d["steps"][k] for d in loaded]) for k in loaded[0]["steps"]}
+    groups = {}
+    for g in loaded[0].get("groups", {}):
+        tables = [d["groups"][g] for d in loaded]
+        groups[g] = _merge_selection(tables) if g == "selection" else _merge_group(tables)
+    return steps, groups
+
+
+def _merge_group(tables):
+    out = {}
+    for k, v in tables[0].items():
+        if k == "labels":  # per vertex, not per step
+            out[k] = v
+        else:
+            out[k] = np.concatenate([t[k] for t in tables])
+    return out
+
+
+def _merge_selection(tables):
+    # Columns in order of first appearance across the steps, as `selection_arrays` makes them.
+    names = []
+    for t in tables:
+        for n in t["candidates"].tolist():
+            if n not in names:
+                names.append(n)
+    out = {"candidates": np.array(names, dtype=str)}
+    chosen = []
+    for t in tables:
+        col = np.array([names.index(n) for n in t["candidates"].tolist()], dtype=np.int64)
+        ch = np.asarray(t["chosen"])
+        chosen.append(np.where(ch >= 0, col[np.maximum(ch, 0)] if col.size else -1, -1))
+    out["chosen"] = np.concatenate(chosen).astype(np.int64)
+    for k in tables[0]:
+        if not k.startswith("predicted_"):
+            continue
+        rows = []
+        for t in tables:
+            a = np.full((t[k].shape[0], len(names)), np.nan)
+            for j, n in enumerate(t["candidates"].tolist()):
+                a[:, names.index(n)] = t[k][:, j]
+            rows.append(a)
+        out[k] = np.concatenate(rows)
+    return out
+
+
+def deform_many(specs, outdir, *, options, overwrite=False, with_stats=False, workers=None, scheduler=None,
+                threads=None, progress=None, on_total=None) -> list:
+    """Deform every input on Dask; write ``<outdir>/<stem>.h5`` per input.
+
+    Parameters
+    ----------
+    specs : list of str
+        Files, directories or glob patterns.
+    outdir : str
+        Output directory (created if missing).
+    options : dict
+        ``model``, ``projection``, ``margin``, ``thickness``, ``frames`` ((start, stop)
+        or None), ``per_vertex``, ``format`` as for `deform_sequence` / the CLI.
+    progress : callable, optional
+        Called once per finished task. on_total(n) is called first with the task count.
+
+    Returns
+    -------
+    list of (input, output, steps) in input order.
+    """
+    from ._version import __version__
+    from .formats import read_sequence
+    from .formats.atomic import check_output
+    from .formats.result import write_result
+
+    inputs = expand_inputs(specs)
+    if os.path.exists(outdir) and not os.path.isdir(outdir):
+        raise InputError(f"-o {outdir}: with several inputs -o names a directory; got an existing file")
+    outs = output_paths(inputs, outdir)
+    for o in outs:
+        check_output(o, overwrite, inputs=inputs)
+    with client(workers, scheduler) as c:
+        tasks = plan(inputs, n_workers_of(c), options.get("frames"))
+        if on_total is not None:
+            on_total(len(tasks))
+        os.makedirs(outdir, exist_ok=True)
+        out_of = dict(zip(inputs, outs))
+        try:
+            parts = run_tasks(c, _deform_entry, tasks, (out_of, options, with_stats, threads or 1), progress)
+        except BaseException:
+            for o in outs:
+                shutil.rmtree(_parts_dir(o), ignore_errors=True)
+            raise
+    done = []
+    try:
+        for path, out in zip(inputs, outs):
+            mine = sorted(p for t, p in zip(tasks, parts) if t.path == path)
+            steps, groups = merge_partials(mine)
+            seq = read_sequence(path, format=options.get("format"))
+            opts = _options_of(options, seq, options.get("frames"))
+            attrs = {"penfree_version": __version__, "input": os.path.basename(path),
+                     "options": dict(opts, weights="weights" if seq.weights is not None else None)}
+            write_result(out, seq, steps, attrs, groups=groups, overwrite=overwrite)
+            done.append((path, out, steps))
+    finally:  # partial results never outlive the run, merged or not
+        for o in outs:
+            shutil.rmtree(_parts_dir(o), ignore_errors=True)
+    return done
+
+
+def _deform_entry(task, out_of, options, with_stats, threads):
+    return deform_task(task, out_of[task.path], options, with_stats, threads)
+
+
+def _options_of(options, seq, frames):
+    """The ``options`` attribute a serial `deform_sequence` run records."""
+    from .core.pipeline.deform import required_margin, run_options
+
+    thickness = seq.thickness if options["thickness"] is None else float(options["thickness"])
+    contact_radius = seq.contact_radius if options.get("contact_radius") is None else float(options["contact_radius"])
+    return run_options(options["model"], options["projection"], required_margin(thickness, options["margin"]),
+                       thickness, contact_radius, frames, options["per_vertex"])
+
+
+# --- verify and report ---------------------------------------------------------------
+
+
+def verify_task(task, options, threads):
+    """Worker: verify the steps of `task` (a `VerifyReport`)."""
+    from .core.pipeline.verification import verify_file
+
+    _set_threads(threads)
+    frames = options["frames"] if task.lo is None else task.frames()
+    return verify_file(task.path, thickness=options["thickness"], frames=frames, mode=options["mode"],
+                       max_pairs=options["max_pairs"], strict=options.get("strict", False))
+
+
+def verify_many(specs, *, thickness=None, frames=None, mode="auto", max_pairs=10, workers=None, scheduler=None,
+                threads=None, progress=None, on_total=None, strict=False) -> list:
+    """`verify_file` for every input on Dask; one merged `VerifyReport` per input, in order."""
+    from .formats.result import is_result_file
+
+    inputs = expand_inputs(specs)
+    with client(workers, scheduler) as c:
+        n = n_workers_of(c)
+        tasks = []
+        for p in inputs:
+            tasks.extend(plan([p], max(1, math.ceil(n / len(inputs))), frames,
+                              "result" if is_result_file(p) else "path"))
+        if on_total is not None:
+            on_total(len(tasks))
+        options = {"thickness": thickness, "frames": frames, "mode": mode, "max_pairs": max_pairs, "strict": strict}
+        reports = run_tasks(c, verify_task, tasks, (options, threads or 1), progress)
+    merged = []
+    for p in inputs:
+        mine = [r for t, r in zip(tasks, reports) if t.path == p]
+        rep = mine[0]
+        for r in mine[1:]:
+            rep.steps.extend(r.steps)
+        merged.append(rep)
+    return merged
+
+
+def report_task(task, options, threads):
+    """Worker: the report entry of one result file (`make_file_report`)."""
+    from .report.build import make_file_report, open_result, select_steps
+
+    _set_threads(threads)
+    res = select_steps(open_result(task.path), options["frames"])
+    return make_file_report(task.path, res, cd_share=options["cd_share"], frame_ms=options["frame_ms"],
+                            replay=options["replay"], ladder=options["ladder"])
+
+
+def report_many(specs, *, options, workers=None, scheduler=None, threads=None, progress=None, on_total=None):
+    """Report entries of every input on Dask (one task per file), in input order."""
+    inputs = expand_inputs(specs)
+    with client(workers, scheduler) as c:
+        tasks = [Task(p) for p in inputs]
+        if on_total is not None:
+            on_total(len(tasks))
+        return inputs, run_tasks(c, report_task, tasks, (options, threads or 1), progress)

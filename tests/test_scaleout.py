@@ -1,0 +1,193 @@
+"""Scale-out on Dask: inputs expand as documented, frame ranges cover every step once,
+and outputs of the several-inputs path equal a serial run dataset by dataset (the
+oracle), for deform (with the selection table and stats), verify and report."""
+
+import builtins
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from penfree import scaleout
+from penfree.cli import main
+from penfree.errors import InputError
+from penfree.scaleout import Task, expand_inputs, merge_partials, plan
+
+SAMPLES = Path(__file__).resolve().parents[1] / "samples"
+#: Wall times differ between any two runs; everything else must be equal.
+NONDETERMINISTIC = {"steps/time_fit_s"}
+
+
+def _datasets(path):
+    out = {}
+    with h5py.File(path, "r") as f:
+        def visit(name, obj):
+            if isinstance(obj, h5py.Dataset):
+                out[name] = obj[()]
+        f.visititems(visit)
+        attrs = {k: str(v) for k, v in f.attrs.items()}
+    return out, attrs
+
+
+def assert_same_result(a, b):
+    da, aa = _datasets(a)
+    db, ab = _datasets(b)
+    assert set(da) == set(db)
+    for k in sorted(set(da) - NONDETERMINISTIC):
+        x, y = da[k], db[k]
+        if getattr(x, "dtype", None) is not None and x.dtype.kind == "f":
+            np.testing.assert_array_equal(x, y, err_msg=k)
+        else:
+            assert np.array_equal(x, y), k
+    assert aa == ab
+
+
+@pytest.fixture(scope="module")
+def scheduler():
+    """One local cluster (2 processes) for the module, used through --scheduler."""
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                  silence_logs=40) as cluster:
+        yield cluster.scheduler_address
+
+
+@pytest.fixture
+def inputs(tmp_path):
+    d = tmp_path / "in"
+    d.mkdir()
+    for name in ("rods.h5", "twisting_cloth.h5"):
+        shutil.copy(SAMPLES / name, d / name)
+    return d
+
+
+def test_expand_inputs(inputs, tmp_path):
+    files = sorted(str(p) for p in inputs.glob("*.h5"))
+    assert expand_inputs([str(inputs)]) == files
+    assert expand_inputs([str(inputs / "*.h5"), files[0]]) == files  # duplicates dropped
+    (tmp_path / "frames").mkdir()
+    assert expand_inputs([str(tmp_path / "frames")]) == [str(tmp_path / "frames")]  # a mesh-sequence directory
+    with pytest.raises(InputError, match="no file matches"):
+        expand_inputs([str(tmp_path / "nothing*.h5")])
+    with pytest.raises(InputError, match="no such file"):
+        expand_inputs([str(tmp_path / "missing.h5")])
+
+
+@pytest.mark.parametrize("kind, frames", [("sequence", None), ("sequence", (5, 30)), ("path", None),
+                                          ("sequence", (-20, None))])
+def test_plan_covers_every_step_once(kind, frames):
+    path = str(SAMPLES / "rods.h5")
+    T = 48
+    tasks = plan([path], 3, frames, kind)
+    assert len(tasks) > 1
+    steps = np.arange(1, T) if kind == "sequence" else np.arange(0, T - 1)
+    if frames is not None:
+        steps = steps[np.isin(steps, np.arange(T)[slice(*frames)])]
+    covered = np.concatenate([np.arange(t.lo, t.hi) for t in tasks])
+    np.testing.assert_array_equal(covered, steps)
+
+
+def test_merge_selection_orders_columns_by_first_appearance(tmp_path):
+    parts = []
+    for k, (names, chosen) in enumerate([(["a", "b"], [1, 0]), (["c", "a"], [0, -1])]):
+        p = tmp_path / f"part-{k}.npz"
+        pred = np.arange(4.0).reshape(2, 2) + 10 * k
+        np.savez(p, **{"steps/frame": np.array([2 * k + 1, 2 * k + 2]),
+                       "groups/selection/candidates": np.array(names),
+                       "groups/selection/chosen": np.array(chosen),
+                       "groups/selection/predicted_k_any": pred})
+        parts.append(p)
+    steps, groups = merge_partials(parts)
+    sel = groups["selection"]
+    assert sel["candidates"].tolist() == ["a", "b", "c"]
+    assert sel["chosen"].tolist() == [1, 0, 2, -1]
+    np.testing.assert_array_equal(sel["predicted_k_any"],
+                                  [[0, 1, np.nan], [2, 3, np.nan], [11, np.nan, 10], [13, np.nan, 12]])
+    assert steps["frame"].tolist() == [1, 2, 3, 4]
+
+
+@pytest.mark.parametrize("extra", [["--model", "auto", "--stats"], ["--model", "affine", "--frames", "3:40"]])
+def test_deform_many_equals_serial(inputs, tmp_path, scheduler, extra):
+    runner = CliRunner()
+    out = tmp_path / "out"
+    r = runner.invoke(main, ["deform", str(inputs), "-o", str(out), "--scheduler", scheduler, *extra])
+    assert r.exit_code == 0, r.output
+    for src in sorted(inputs.glob("*.h5")):
+        serial = tmp_path / f"serial-{src.stem}.h5"
+        r = runner.invoke(main, ["deform", str(src), "-o", str(serial), *extra])
+        assert r.exit_code == 0, r.output
+        assert_same_result(out / f"{src.stem}.h5", serial)
+    assert sorted(p.name for p in out.iterdir()) == ["rods.h5", "twisting_cloth.h5"]  # no parts left behind
+
+
+def test_deform_local_workers_and_no_silent_overwrite(inputs, tmp_path):
+    pytest.importorskip("distributed")
+    runner = CliRunner()
+    out = tmp_path / "out"
+    args = ["deform", str(inputs / "rods.h5"), "-o", str(out), "--workers", "2", "--model", "affine",
+            "--frames", ":12"]
+    r = runner.invoke(main, args)
+    assert r.exit_code == 0, r.output
+    before = (out / "rods.h5").stat().st_mtime_ns
+    r = runner.invoke(main, args)
+    assert r.exit_code == 2 and "exists" in r.output
+    assert (out / "rods.h5").stat().st_mtime_ns == before
+
+
+def test_verify_and_report_many_equal_serial(inputs, tmp_path, scheduler):
+    runner = CliRunner()
+    out = tmp_path / "out"
+    assert runner.invoke(main, ["deform", str(inputs), "-o", str(out), "--scheduler", scheduler,
+                                "--frames", ":20"]).exit_code == 0
+    files = sorted(str(p) for p in out.glob("*.h5")) + [str(inputs / "rods.h5")]
+    r = runner.invoke(main, ["verify", *files, "--scheduler", scheduler, "--json", "--frames", ":20"])
+    assert r.exit_code == 0, r.output
+    import json
+
+    many = json.loads(r.output)["files"]
+    for f, rep in zip(files, many):
+        r1 = runner.invoke(main, ["verify", f, "--json", "--frames", ":20"])
+        assert json.loads(r1.output) == rep
+    rd = tmp_path / "rep-many"
+    r = runner.invoke(main, ["report", str(out / "*.h5"), "-o", str(rd), "--scheduler", scheduler, "--no-plots",
+                             "--no-ladder", "--json"])
+    assert r.exit_code == 0, r.output
+    r1 = runner.invoke(main, ["report", *files[:2], "-o", str(tmp_path / "rep-serial"), "--no-plots",
+                              "--no-ladder", "--json"])
+    a, b = json.loads(r.output), json.loads(r1.output)
+    assert a["files"] == b["files"]
+
+
+def test_failed_task_names_file_and_frames(tmp_path, scheduler):
+    distributed = pytest.importorskip("distributed")
+    path = str(SAMPLES / "rods.h5")
+    bad = {"model": "no-such-model", "projection": "auto", "margin": None, "thickness": None, "per_vertex": False,
+           "frames": None}
+    with distributed.Client(scheduler) as c:
+        with pytest.raises(InputError, match=r"rods\.h5 frames 5:9"):
+            scaleout.run_tasks(c, scaleout.deform_task, [Task(path, 5, 9)], (str(tmp_path / "x.h5"), bad, False, 1))
+
+
+def test_without_dask_one_line_and_exit_2(inputs, tmp_path, monkeypatch):
+    real_import = builtins.__import__
+
+    def no_dask(name, *args, **kw):
+        if name == "distributed" or name.startswith("dask"):
+            raise ImportError(f"No module named {name!r}")
+        return real_import(name, *args, **kw)
+
+    monkeypatch.setattr(builtins, "__import__", no_dask)
+    r = CliRunner().invoke(main, ["deform", str(inputs), "-o", str(tmp_path / "out")])
+    assert r.exit_code == 2
+    assert "pip install 'penfree[dask]'" in r.output and len(r.output.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+
+
+def test_single_input_output_directory_is_refused(inputs, tmp_path):
+    out = tmp_path / "outdir"
+    out.mkdir()
+    r = CliRunner().invoke(main, ["deform", str(inputs / "rods.h5"), "-o", str(out), "--overwrite"])
+    assert r.exit_code == 2 and "is a directory" in r.output
+    assert not any(out.iterdir())
