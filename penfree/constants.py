@@ -152,3 +152,11 @@ DEFAULT_CLIENT_MAX_ITER = 32
 #: A vertex within this fraction of the step's largest recorded move from x_next
 #: has arrived (the iterations land exactly on x_next when not truncated).
 DEFAULT_CLIENT_TOL_REL = 1e-6
+#: `auto` under a client model (penfree/core/client_select.py): candidates replayed
+#: per step besides doing nothing, best static prediction first (each replay costs a
+#: few bound computations).
+CLIENT_SELECT_SHORTLIST = 3
+#: Vertices whose start separation is within this many contact radii are in contact:
+#: the predictor holds them at x (resting contact lives inside the contact radius,
+#: plus a margin for contacts that are about to form).
+CONTACT_HOLD_FACTOR = 1.5

@@ -85,6 +85,7 @@ def deform_sequence(
     frames=None,
     per_vertex=False,
     progress=None,
+    client_model=None,
 ) -> DeformOutput:
     """Fit, project and certify one affine map per step of `seq`.
 
@@ -111,6 +112,9 @@ def deform_sequence(
         Also keep per-vertex residual norms (S, N) float32.
     progress : callable or None
         Called once per finished step.
+    client_model : client_select.ClientModel or None
+        With ``model="auto"``: choose by that OGC client's predicted CD passes
+        (`selection.select_step`).
 
     Returns
     -------
@@ -192,7 +196,7 @@ def deform_sequence(
             r = _component_applied(cs)
         elif select:
             res, table_rows[k] = select_step(x_prev, x, d_start, r_q=r_q, thickness=thickness, weights=weights,
-                                             margin=m, projection=projection)
+                                             margin=m, projection=projection, client_model=client_model)
             r = _applied(res)
         else:
             r = _applied(fit_step(x_prev, x, weights=weights, model=model, projection=projection, margin=m))

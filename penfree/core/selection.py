@@ -308,7 +308,7 @@ def choose(cands: list) -> int:
 
 
 def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA, weights=None,
-                margin=0.0, projection="auto", out=None):
+                margin=0.0, projection="auto", out=None, client_model=None):
     """Fit every candidate of a step and keep the one with the fewest predicted passes.
 
     Parameters
@@ -323,6 +323,10 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
         As in `fit_step` and `trust_region_bounds`.
     out : (N, 3) array or None
         Where to write the chosen `x_def`.
+    client_model : client_select.ClientModel or None
+        Choose by the predicted CD passes of that OGC client instead of the static
+        K_1pct (`client_select.choose_by_client`: replays a shortlist through
+        penfree's own client, doing nothing included, ties to doing nothing).
 
     Returns
     -------
@@ -361,7 +365,12 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
             seen[key] = _predict(x_prev, x, cand.D, cand.u, m.c, d_start, float(cand.sigma_lb), r_q, thickness,
                                  gamma, r_buf)
         cand.predicted = dict(seen[key])
-    k = choose(cands)
+    if client_model is None:
+        k = choose(cands)
+    else:
+        from .client_select import choose_by_client
+
+        k = choose_by_client(cands, x_prev, x, m.c, d_start, client_model, thickness, r_q)
     best = cands[k]
     x_def, stats = _fit.apply_map(x, best.D, best.u, m.c, out=out, x_prev=x_prev)
     result = StepResult(
