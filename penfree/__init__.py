@@ -24,6 +24,7 @@ _LAZY = {
     "ccd_vertex_face": ("penfree.core.ccd", "ccd_vertex_face"),
     "verify_step": ("penfree.core.verify", "verify_step"),
     "trust_region_bounds": ("penfree.core.trust_region", "trust_region_bounds"),
+    "predeform": ("penfree.core.predeform", "predeform"),
 }
 
 __all__ = [

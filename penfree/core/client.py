@@ -200,7 +200,7 @@ def replay_step(x_s, x, x_pred, x_next, *, edges=None, faces=None, dhat, thickne
     --------
     >>> import numpy as np
     >>> x = np.array([[0.0, 0, 0], [1, 0, 0], [0, 0, 1], [1, 0, 1]])
-    >>> r = replay_step(x, x, x + 0.01, x + 0.02, edges=[[0, 1], [2, 3]], dhat=0.01, client="own")
+    >>> r = replay_step(x, x, x + 0.001, x + 0.002, edges=[[0, 1], [2, 3]], dhat=0.01, client="own")
     >>> r["passes"], r["converged"]
     (1, True)
     """
