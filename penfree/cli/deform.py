@@ -38,9 +38,14 @@ from .options import (
 @click.option("--stats", "with_stats", is_flag=True,
               help="Also compute trust-region statistics (stats/...) for `penfree report`.")
 @click.option("--format", "in_format", default=None, help="Input format (default: from the extension).")
+@click.option("--client-model", type=click.Choice(["isotropic", "planar"]), default=None,
+              help="With --model auto: choose by the predicted CD passes of an OGC client with this truncation "
+                   "(radius rule step; penfree's own replay, no ipctk needed).")
+@click.option("--dhat", type=click.FloatRange(min=0.0, min_open=True), default=None,
+              help="With --client-model: contact offset [default: the contact radius, else the thickness].")
 @json_option
 def command(input_path, output_path, model, projection, margin, thickness, frames, weights_name,
-            threads, overwrite, per_vertex, with_stats, in_format, as_json):
+            threads, overwrite, per_vertex, with_stats, in_format, client_model, dhat, as_json):
     """Fit, certify and apply a global affine map to every step of IN.
 
     Each step s moves frame s toward the prediction 2 x^s - x^(s-1); the straight path
@@ -56,13 +61,23 @@ def command(input_path, output_path, model, projection, margin, thickness, frame
     set_threads(threads)
     seq = read_sequence(input_path, format=in_format)
     weights = _read_weights(input_path, weights_name, seq) if weights_name else None
+    cm = None
+    if client_model:
+        from ..core.client_select import ClientModel
+        from ..core.client_stats import resolve_dhat
+
+        if model != "auto":
+            raise InputError(f"--client-model needs --model auto; got --model {model}")
+        cm = ClientModel(truncation=client_model, edges=seq.edges, faces=seq.faces,
+                         dhat=resolve_dhat(dhat, getattr(seq, "contact_radius", 0.0),
+                                           seq.thickness if thickness is None else thickness))
 
     t0 = time.perf_counter()
     n_steps = len(range(*slice(*(frame_slice or (None, None))).indices(seq.n_frames)))
     with Progress(n_steps, "deform") as bar:
         result = deform_sequence(
             seq, model=model, projection=projection, margin=margin, thickness=thickness,
-            weights=weights, frames=frame_slice, per_vertex=per_vertex, progress=bar,
+            weights=weights, frames=frame_slice, per_vertex=per_vertex, progress=bar, client_model=cm,
         )
     groups = dict(result.groups)
     if with_stats:
@@ -73,7 +88,8 @@ def command(input_path, output_path, model, projection, margin, thickness, frame
     attrs = {
         "penfree_version": __version__,
         "input": os.path.basename(input_path),
-        "options": dict(result.options, weights=weights_name or ("weights" if seq.weights is not None else None)),
+        "options": dict(result.options, weights=weights_name or ("weights" if seq.weights is not None else None),
+                        client_model=client_model),
     }
     write_result(output_path, seq, result.steps, attrs, groups=groups, overwrite=overwrite)
     elapsed = time.perf_counter() - t0

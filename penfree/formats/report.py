@@ -197,7 +197,7 @@ def stored_stats(result, replay=False):
 
 
 def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAULT_FRAME_MS, replay=False,
-                     ladder=True, progress=None) -> dict:
+                     ladder=True, progress=None, client=None) -> dict:
     """Statistics (read or computed), model ladder and the report entry of one result.
 
     Parameters
@@ -214,6 +214,9 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
         Re-fit every step with every model of the ladder.
     progress : callable, optional
         Called once per step of each computing phase (statistics, ladder).
+    client : dict, optional
+        Options of the real-client replay (`client_report.client_section`); its
+        section is stored under ``client``.
     """
     stats = stored_stats(result, replay)
     source = "file"
@@ -228,8 +231,13 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
         lad = model_ladder(seq.positions, steps["frame"], edges=seq.edges, faces=seq.faces,
                            thickness=seq.thickness, weights=seq.weights, margins=steps.get("margin_required"),
                            projection=projection, replay=replay, progress=progress)
-    return build_file_report(path, result, stats, ladder=lad, cd_share=cd_share, frame_ms=frame_ms,
-                             stats_source=source)
+    rep = build_file_report(path, result, stats, ladder=lad, cd_share=cd_share, frame_ms=frame_ms,
+                            stats_source=source)
+    if client:
+        from .client_report import client_section
+
+        rep["client"] = client_section(result, progress=progress, **client)
+    return rep
 
 
 def load_report_json(path) -> dict:
@@ -517,6 +525,10 @@ def render_markdown(doc) -> str:
            f"Frame times and speedups are *projected*, not measured: {PROJECTED_FORMULA}.\n"]
     for i, rep in enumerate(doc["files"]):
         out.append(_file_md(rep))
+        if rep.get("client"):
+            from .client_report import client_markdown
+
+            out.append(client_markdown(rep["client"]))
         files = (doc["plots"].get("per_file") or [[]] * len(doc["files"]))[i]
         if files:
             out.append("### Plots\n")
