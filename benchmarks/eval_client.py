@@ -29,9 +29,20 @@ from penfree.core.pipeline import deform_sequence
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 
 
+def _contact_radius(path, seq):
+    """The sequence's contact radius (read from the HDF5 attribute if the reader left it 0)."""
+    r = float(getattr(seq, "contact_radius", 0.0) or 0.0)
+    if not r and str(path).endswith(".h5"):
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            r = float(f.attrs.get("contact_radius", 0.0))
+    return r
+
+
 def evaluate(path, every=1, client="ipctk"):
     seq = read_sequence(path)
-    dhat = resolve_dhat(None, getattr(seq, "contact_radius", 0.0), seq.thickness)
+    dhat = resolve_dhat(None, _contact_radius(path, seq), seq.thickness)
     rows = {}
     for tr in ("isotropic", "planar"):
         cm = ClientModel(truncation=tr, dhat=dhat, edges=seq.edges, faces=seq.faces)
@@ -43,7 +54,7 @@ def evaluate(path, every=1, client="ipctk"):
                                every=every, client=client, models=out.steps["model"])
         sm = summarize_counts(counts)[tr]
         moved = int(np.count_nonzero(counts["model"] != "none"))
-        rows[tr] = dict(sm, moved=moved, n=len(counts["frame"]), t_fit=t_fit)
+        rows[tr] = dict(sm, moved=moved, n=len(counts["frame"]), t_fit=t_fit, dhat=dhat)
     return rows
 
 

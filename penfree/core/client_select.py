@@ -17,8 +17,11 @@ The predictor therefore replays each shortlisted candidate through penfree's own
 client (`client.replay_step` with ``client="own"``: the same warm start, filters and
 1% update rule as ``ipctk.ogc.TrustRegion``), warm-starting toward ``x_pred`` and
 iterating toward the *held target* ``y_hat`` (``x_pred`` for free vertices, ``x``
-for contact vertices). Doing nothing is always replayed; a candidate replaces it
-only with strictly fewer predicted passes (a tie goes to doing nothing).
+for contact vertices), and again toward ``(x + y_hat) / 2`` (the solver stopping
+half-way: contacts, damping, turning motion). Doing nothing is always replayed; a
+candidate replaces it only with strictly fewer predicted passes toward ``y_hat``
+and no more than doing nothing toward the half-way target (ties go to doing
+nothing).
 """
 
 from __future__ import annotations
@@ -94,6 +97,9 @@ def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.
     x64 = np.asarray(x, dtype=np.float64)
     x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
     y_hat = held_target(x64, x_pred, d_start, model.dhat, r_q)
+    # The solver rarely lands on the prediction: a move must also pay off when it
+    # gets only half-way there (contacts, damping, a turning motion).
+    y_half = 0.5 * (x64 + y_hat)
 
     def passes(cand):
         if cand.D.any() or cand.u.any():
@@ -101,28 +107,34 @@ def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.
             x_def = np.asarray(x_def, dtype=np.float64)
         else:
             x_def = x64
-        r = replay_step(x_def, x64, x_pred, y_hat, edges=model.edges, faces=model.faces, dhat=model.dhat,
-                        thickness=thickness, truncation=model.truncation, radius=model.radius, client="own")
-        return r["passes"], r["iterations"]
+        out = []
+        for y in (y_hat, y_half):
+            r = replay_step(x_def, x64, x_pred, y, edges=model.edges, faces=model.faces, dhat=model.dhat,
+                            thickness=thickness, truncation=model.truncation, radius=model.radius, client="own")
+            out.append(r["passes"])
+        return tuple(out)
 
-    best = 0
-    best_p = passes(cands[0])
-    cands[0].predicted["client_passes"] = best_p[0]
+    none = passes(cands[0])
+    cands[0].predicted["client_passes"] = none[0]
+    cands[0].predicted["client_passes_half"] = none[1]
+    best, best_p = 0, none
     seen = {}
     n = 0
     for i in _static_order(cands):
         key = (cands[i].A.tobytes(), cands[i].u.tobytes())
         if key in seen:
-            cands[i].predicted["client_passes"] = cands[seen[key]].predicted["client_passes"]
+            cands[i].predicted.update({k: cands[seen[key]].predicted[k]
+                                       for k in ("client_passes", "client_passes_half")})
             continue
         if n >= model.shortlist:
             break
         seen[key] = i
         n += 1
         p = passes(cands[i])
-        cands[i].predicted["client_passes"] = p[0]
-        # Strictly fewer passes beats the best so far; equal passes go to the simpler
-        # (earlier) one, except that fewer iterations decide between two maps.
-        if p[0] < best_p[0] or (best != 0 and p[0] == best_p[0] and p[1] < best_p[1]):
+        cands[i].predicted["client_passes"], cands[i].predicted["client_passes_half"] = p
+        # Strictly fewer passes toward the target than the best so far, and no more
+        # than doing nothing when the solver gets only half-way: ties go to the
+        # simpler (earlier) candidate, doing nothing first.
+        if p[0] < best_p[0] and p[1] <= none[1]:
             best, best_p = i, p
     return best

@@ -41,37 +41,149 @@ KIND_EDGE_EDGE = 0
 KIND_VERTEX_FACE = 1
 
 
-@njit(cache=True)
-def _seg_param(p, a, b):
-    """Clamped parameter of the point of segment [a, b] closest to p."""
-    ux, uy, uz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-    den = ux * ux + uy * uy + uz * uz
-    if den == 0.0:
-        return 0.0
-    t = ((p[0] - a[0]) * ux + (p[1] - a[1]) * uy + (p[2] - a[2]) * uz) / den
-    return min(1.0, max(0.0, t))
+#: Edges count as parallel when sin^2 of their angle is below this (relative to
+#: |u|^2 |v|^2), as in IPC Toolkit's ``edge_edge_distance_type``.
+EE_PARALLEL_SIN2 = 2.5e-16
 
 
 @njit(cache=True)
-def _dist2_coeffs(P, coef):
-    """Squared norm of sum_j coef_j P_j (the distance vector of a stencil)."""
-    s = 0.0
-    for k in range(3):
-        v = 0.0
-        for j in range(4):
-            v += coef[j] * P[j, k]
-        s += v * v
-    return s
+def _line_param(p, a, b):
+    """Unclamped parameter of the projection of p on the line a + t (b - a)."""
+    u = b - a
+    den = u @ u
+    return 0.0 if den == 0.0 else ((p - a) @ u) / den
 
 
 @njit(cache=True)
-def _try(P, cand, best_d, best):
-    d = _dist2_coeffs(P, cand)
-    if d < best_d:
-        for j in range(4):
-            best[j] = cand[j]
-        return d
-    return best_d
+def _set(coef, c0, c1, c2, c3):
+    coef[0] = c0
+    coef[1] = c1
+    coef[2] = c2
+    coef[3] = c3
+
+
+@njit(cache=True)
+def _ee_parallel(P, coef):
+    """Closest features of two parallel edges (IPC Toolkit's parallel classification)."""
+    ea = P[1] - P[0]
+    n2 = ea @ ea
+    alpha = ((P[2] - P[0]) @ ea) / n2
+    beta = ((P[3] - P[0]) @ ea) / n2
+    if alpha < 0:
+        eac = 2 if 0 <= beta <= 1 else 0
+        ebc = 0 if beta <= alpha else (1 if beta <= 1 else 2)
+    elif alpha > 1:
+        eac = 2 if 0 <= beta <= 1 else 1
+        ebc = 0 if beta >= alpha else (1 if 0 <= beta else 2)
+    else:
+        eac = 2
+        ebc = 0
+    _ee_features(P, eac, ebc, coef)
+
+
+@njit(cache=True)
+def _ee_features(P, eac, ebc, coef):
+    """Coefficients for features eac / ebc (0: first endpoint, 1: second, 2: the edge)."""
+    if eac < 2 and ebc < 2:
+        _set(coef, 1.0 - eac, float(eac), -(1.0 - ebc), -float(ebc))
+    elif eac == 2 and ebc < 2:
+        s = _line_param(P[2 + ebc], P[0], P[1])
+        _set(coef, 1.0 - s, s, -(1.0 - ebc), -float(ebc))
+    elif eac < 2:
+        t = _line_param(P[eac], P[2], P[3])
+        _set(coef, 1.0 - eac, float(eac), -(1.0 - t), -t)
+    else:
+        u = P[1] - P[0]
+        v = P[3] - P[2]
+        w = P[0] - P[2]
+        a, b, c, d, e = u @ u, u @ v, v @ v, u @ w, v @ w
+        D = a * c - b * b
+        s = (b * e - c * d) / D
+        t = (a * e - b * d) / D
+        _set(coef, 1.0 - s, s, -(1.0 - t), -t)
+
+
+@njit(cache=True)
+def _ee_coefficients(P, coef):
+    """IPC Toolkit's ``edge_edge_distance_type`` and the coefficients of the type."""
+    u = P[1] - P[0]
+    v = P[3] - P[2]
+    w = P[0] - P[2]
+    a, b, c, d, e = u @ u, u @ v, v @ v, u @ w, v @ w
+    D = a * c - b * b
+    if a == 0.0 and c == 0.0:
+        _ee_features(P, 0, 0, coef)
+        return
+    if a == 0.0:
+        _ee_features(P, 0, 2, coef)
+        return
+    if c == 0.0:
+        _ee_features(P, 2, 0, coef)
+        return
+    n = np.cross(u, v)
+    if n @ n < EE_PARALLEL_SIN2 * a * c:
+        _ee_parallel(P, coef)
+        return
+    eac, ebc = 2, 2
+    sN = b * e - c * d
+    if sN <= 0.0:
+        tN, tD, eac = e, c, 0
+    elif sN >= D:
+        tN, tD, eac = e + b, c, 1
+    else:
+        tN, tD = a * e - b * d, D
+    if tN <= 0.0:
+        ebc = 0
+        eac = 0 if -d <= 0.0 else (1 if -d >= a else 2)
+    elif tN >= tD:
+        ebc = 1
+        eac = 0 if -d + b <= 0.0 else (1 if -d + b >= a else 2)
+    _ee_features(P, eac, ebc, coef)
+
+
+@njit(cache=True)
+def _edge_side(p, e0, e1, normal):
+    """(along, across) of p in the basis (e1 - e0, (e1 - e0) x normal), solved as ipctk does."""
+    r0 = e1 - e0
+    r1 = np.cross(r0, normal)
+    q = p - e0
+    g00, g01, g11 = r0 @ r0, r0 @ r1, r1 @ r1
+    b0, b1 = r0 @ q, r1 @ q
+    det = g00 * g11 - g01 * g01
+    return (g11 * b0 - g01 * b1) / det, (g00 * b1 - g01 * b0) / det
+
+
+@njit(cache=True)
+def _pt_coefficients(P, coef):
+    """IPC Toolkit's ``point_triangle_distance_type`` and the coefficients of the type."""
+    p, t0, t1, t2 = P[0], P[1], P[2], P[3]
+    normal = np.cross(t1 - t0, t2 - t0)
+    a0, c0 = _edge_side(p, t0, t1, normal)
+    if 0.0 < a0 < 1.0 and c0 >= 0.0:
+        _set(coef, 1.0, -(1.0 - a0), -a0, 0.0)
+        return
+    a1, c1 = _edge_side(p, t1, t2, normal)
+    if 0.0 < a1 < 1.0 and c1 >= 0.0:
+        _set(coef, 1.0, 0.0, -(1.0 - a1), -a1)
+        return
+    a2, c2 = _edge_side(p, t2, t0, normal)
+    if 0.0 < a2 < 1.0 and c2 >= 0.0:
+        _set(coef, 1.0, -a2, 0.0, -(1.0 - a2))
+        return
+    if a0 <= 0.0 and a2 >= 1.0:
+        _set(coef, 1.0, -1.0, 0.0, 0.0)
+    elif a1 <= 0.0 and a0 >= 1.0:
+        _set(coef, 1.0, 0.0, -1.0, 0.0)
+    elif a2 <= 0.0 and a1 >= 1.0:
+        _set(coef, 1.0, 0.0, 0.0, -1.0)
+    else:  # the interior: barycentric coordinates of the projection
+        u = t1 - t0
+        v = t2 - t0
+        w = p - t0
+        n2 = normal @ normal
+        bu = (np.cross(w, v) @ normal) / n2
+        bv = (np.cross(u, w) @ normal) / n2
+        _set(coef, 1.0, -(1.0 - bu - bv), -bu, -bv)
 
 
 @njit(cache=True)
@@ -90,66 +202,16 @@ def stencil_coefficients(P, kind, coef):
 
     Notes
     -----
-    The minimum over a closed candidate set (endpoints against the other segment,
-    edges of the triangle, and the interior solution when it is inside), as
-    `penfree.core.distance` does for the distances themselves.
+    The closest features are classified exactly as IPC Toolkit classifies them
+    (``edge_edge_distance_type`` with its parallel branch,
+    ``point_triangle_distance_type``), so that near-parallel edges, where several
+    feature pairs are almost equally close, pick the same pair and the division
+    plane is the same.
     """
-    cand = np.zeros(4)
-    best_d = np.inf
     if kind == KIND_EDGE_EDGE:
-        for e in range(2):  # an endpoint of a against segment b
-            t = _seg_param(P[e], P[2], P[3])
-            cand[:] = 0.0
-            cand[e] = 1.0
-            cand[2] = -(1.0 - t)
-            cand[3] = -t
-            best_d = _try(P, cand, best_d, coef)
-        for e in range(2):  # an endpoint of b against segment a
-            s = _seg_param(P[2 + e], P[0], P[1])
-            cand[:] = 0.0
-            cand[0] = 1.0 - s
-            cand[1] = s
-            cand[2 + e] = -1.0
-            best_d = _try(P, cand, best_d, coef)
-        u = P[1] - P[0]
-        v = P[3] - P[2]
-        w = P[2] - P[0]
-        n = np.cross(u, v)
-        n2 = n @ n
-        if n2 > 0.0:
-            s = (np.cross(w, v) @ n) / n2
-            t = (np.cross(w, u) @ n) / n2
-            if 0.0 < s < 1.0 and 0.0 < t < 1.0:
-                cand[0] = 1.0 - s
-                cand[1] = s
-                cand[2] = -(1.0 - t)
-                cand[3] = -t
-                best_d = _try(P, cand, best_d, coef)
+        _ee_coefficients(P, coef)
     else:
-        for e in range(3):  # the point against an edge of the triangle
-            i0 = 1 + e
-            i1 = 1 + (e + 1) % 3
-            t = _seg_param(P[0], P[i0], P[i1])
-            cand[:] = 0.0
-            cand[0] = 1.0
-            cand[i0] = -(1.0 - t)
-            cand[i1] = -t
-            best_d = _try(P, cand, best_d, coef)
-        u = P[2] - P[1]
-        v = P[3] - P[1]
-        w = P[0] - P[1]
-        n = np.cross(u, v)
-        n2 = n @ n
-        if n2 > 0.0:
-            a = (np.cross(w, v) @ n) / n2
-            b = (np.cross(u, w) @ n) / n2
-            if a > 0.0 and b > 0.0 and a + b < 1.0:
-                cand[0] = 1.0
-                cand[1] = -(1.0 - a - b)
-                cand[2] = -a
-                cand[3] = -b
-                best_d = _try(P, cand, best_d, coef)
-    return best_d
+        _pt_coefficients(P, coef)
 
 
 @njit(cache=True)

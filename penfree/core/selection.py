@@ -339,10 +339,17 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
 
     Notes
     -----
+    Integration contract: the predictions assume the simulator keeps the query
+    radius of `x` (rule ``step``) after moving to the chosen ``x_def``; a client
+    that recomputes it from ``x_def`` (ipctk's ``warm_start_time_step``, rule
+    ``own``) gets smaller trust regions and may need more passes than predicted
+    (README, "Using penfree inside a simulator"; `penfree.predeform`).
+
     Cost: one moment pass, then per distinct candidate one fused O(N) pass that
     predicts without forming x_def (`predict_map_passes`) and one pass over the ratios
     for the percentile; x_def is written once, for the chosen map. No neighbourhood
-    query.
+    query, except with `client_model`: each replayed candidate then costs a few
+    bound computations (one per predicted CD pass).
     """
     t0 = time.perf_counter()
     # NaN/Inf positions are caught by fit_moments from its sums (no extra pass here).
