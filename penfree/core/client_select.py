@@ -18,10 +18,10 @@ client (`client.replay_step` with ``client="own"``: the same warm start, filters
 1% update rule as ``ipctk.ogc.TrustRegion``), warm-starting toward ``x_pred`` and
 iterating toward the *held target* ``y_hat`` (``x_pred`` for free vertices, ``x``
 for contact vertices), and again toward ``(x + y_hat) / 2`` (the solver stopping
-half-way: contacts, damping, turning motion). Doing nothing is always replayed; a
-candidate replaces it only with strictly fewer predicted passes toward ``y_hat``
-and no more than doing nothing toward the half-way target (ties go to doing
-nothing).
+half-way: contacts, damping, turning motion). The score is the sum of the two
+pass counts. Doing nothing is always replayed; a candidate replaces it only with a
+strictly smaller score and no more passes toward ``y_hat`` than doing nothing (ties
+go to doing nothing).
 """
 
 from __future__ import annotations
@@ -101,18 +101,26 @@ def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.
     # gets only half-way there (contacts, damping, a turning motion).
     y_half = 0.5 * (x64 + y_hat)
 
-    def passes(cand):
+    def replay(x_def, y, max_iter):
+        return replay_step(x_def, x64, x_pred, y, edges=model.edges, faces=model.faces, dhat=model.dhat,
+                           thickness=thickness, truncation=model.truncation, radius=model.radius, client="own",
+                           max_iter=max_iter)["passes"]
+
+    def passes(cand, none=None):
         if cand.D.any() or cand.u.any():
             x_def, _ = _fit.apply_map(x, cand.D, cand.u, c)
             x_def = np.asarray(x_def, dtype=np.float64)
         else:
             x_def = x64
-        out = []
-        for y in (y_hat, y_half):
-            r = replay_step(x_def, x64, x_pred, y, edges=model.edges, faces=model.faces, dhat=model.dhat,
-                            thickness=thickness, truncation=model.truncation, radius=model.radius, client="own")
-            out.append(r["passes"])
-        return tuple(out)
+        if none is None:
+            return replay(x_def, y_hat, K.DEFAULT_CLIENT_MAX_ITER), replay(x_def, y_half, K.DEFAULT_CLIENT_MAX_ITER)
+        # A replay stopped after k iterations that each asked for a CD pass has at
+        # least k + 1 passes: with these caps a stopped candidate always loses, so
+        # the comparison below is the same as with full replays (and far cheaper).
+        p0 = replay(x_def, y_hat, none[0])
+        if p0 > none[0]:
+            return p0, none[1] + 1
+        return p0, replay(x_def, y_half, max(0, sum(none) - p0))
 
     none = passes(cands[0])
     cands[0].predicted["client_passes"] = none[0]
@@ -130,11 +138,12 @@ def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.
             break
         seen[key] = i
         n += 1
-        p = passes(cands[i])
+        p = passes(cands[i], none)
         cands[i].predicted["client_passes"], cands[i].predicted["client_passes_half"] = p
-        # Strictly fewer passes toward the target than the best so far, and no more
-        # than doing nothing when the solver gets only half-way: ties go to the
-        # simpler (earlier) candidate, doing nothing first.
-        if p[0] < best_p[0] and p[1] <= none[1]:
+        # The score is the passes toward the target plus those toward the half-way
+        # point; a candidate must lower it strictly, and must not need more passes
+        # than doing nothing toward the target. Ties go to the simpler (earlier)
+        # candidate, doing nothing first.
+        if sum(p) < sum(best_p) and p[0] <= none[0]:
             best, best_p = i, p
     return best

@@ -46,15 +46,21 @@ KIND_VERTEX_FACE = 1
 EE_PARALLEL_SIN2 = 2.5e-16
 
 
-@njit(cache=True)
-def _line_param(p, a, b):
-    """Unclamped parameter of the projection of p on the line a + t (b - a)."""
-    u = b - a
-    den = u @ u
-    return 0.0 if den == 0.0 else ((p - a) @ u) / den
+@njit(cache=True, inline="always")
+def _dd(P, i, j, k, l):
+    """``(P[i] - P[j]) . (P[k] - P[l])`` without temporaries."""
+    return ((P[i, 0] - P[j, 0]) * (P[k, 0] - P[l, 0]) + (P[i, 1] - P[j, 1]) * (P[k, 1] - P[l, 1])
+            + (P[i, 2] - P[j, 2]) * (P[k, 2] - P[l, 2]))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
+def _line_param(P, ip, ia, ib):
+    """Unclamped parameter of the projection of P[ip] on the line P[ia] + t (P[ib] - P[ia])."""
+    den = _dd(P, ib, ia, ib, ia)
+    return 0.0 if den == 0.0 else _dd(P, ip, ia, ib, ia) / den
+
+
+@njit(cache=True, inline="always")
 def _set(coef, c0, c1, c2, c3):
     coef[0] = c0
     coef[1] = c1
@@ -63,40 +69,19 @@ def _set(coef, c0, c1, c2, c3):
 
 
 @njit(cache=True)
-def _ee_parallel(P, coef):
-    """Closest features of two parallel edges (IPC Toolkit's parallel classification)."""
-    ea = P[1] - P[0]
-    n2 = ea @ ea
-    alpha = ((P[2] - P[0]) @ ea) / n2
-    beta = ((P[3] - P[0]) @ ea) / n2
-    if alpha < 0:
-        eac = 2 if 0 <= beta <= 1 else 0
-        ebc = 0 if beta <= alpha else (1 if beta <= 1 else 2)
-    elif alpha > 1:
-        eac = 2 if 0 <= beta <= 1 else 1
-        ebc = 0 if beta >= alpha else (1 if 0 <= beta else 2)
-    else:
-        eac = 2
-        ebc = 0
-    _ee_features(P, eac, ebc, coef)
-
-
-@njit(cache=True)
 def _ee_features(P, eac, ebc, coef):
     """Coefficients for features eac / ebc (0: first endpoint, 1: second, 2: the edge)."""
     if eac < 2 and ebc < 2:
         _set(coef, 1.0 - eac, float(eac), -(1.0 - ebc), -float(ebc))
     elif eac == 2 and ebc < 2:
-        s = _line_param(P[2 + ebc], P[0], P[1])
+        s = _line_param(P, 2 + ebc, 0, 1)
         _set(coef, 1.0 - s, s, -(1.0 - ebc), -float(ebc))
     elif eac < 2:
-        t = _line_param(P[eac], P[2], P[3])
+        t = _line_param(P, eac, 2, 3)
         _set(coef, 1.0 - eac, float(eac), -(1.0 - t), -t)
     else:
-        u = P[1] - P[0]
-        v = P[3] - P[2]
-        w = P[0] - P[2]
-        a, b, c, d, e = u @ u, u @ v, v @ v, u @ w, v @ w
+        a, b, c = _dd(P, 1, 0, 1, 0), _dd(P, 1, 0, 3, 2), _dd(P, 3, 2, 3, 2)
+        d, e = _dd(P, 1, 0, 0, 2), _dd(P, 3, 2, 0, 2)
         D = a * c - b * b
         s = (b * e - c * d) / D
         t = (a * e - b * d) / D
@@ -106,10 +91,8 @@ def _ee_features(P, eac, ebc, coef):
 @njit(cache=True)
 def _ee_coefficients(P, coef):
     """IPC Toolkit's ``edge_edge_distance_type`` and the coefficients of the type."""
-    u = P[1] - P[0]
-    v = P[3] - P[2]
-    w = P[0] - P[2]
-    a, b, c, d, e = u @ u, u @ v, v @ v, u @ w, v @ w
+    a, b, c = _dd(P, 1, 0, 1, 0), _dd(P, 1, 0, 3, 2), _dd(P, 3, 2, 3, 2)
+    d, e = _dd(P, 1, 0, 0, 2), _dd(P, 3, 2, 0, 2)
     D = a * c - b * b
     if a == 0.0 and c == 0.0:
         _ee_features(P, 0, 0, coef)
@@ -120,9 +103,23 @@ def _ee_coefficients(P, coef):
     if c == 0.0:
         _ee_features(P, 2, 0, coef)
         return
-    n = np.cross(u, v)
-    if n @ n < EE_PARALLEL_SIN2 * a * c:
-        _ee_parallel(P, coef)
+    ux, uy, uz = P[1, 0] - P[0, 0], P[1, 1] - P[0, 1], P[1, 2] - P[0, 2]
+    vx, vy, vz = P[3, 0] - P[2, 0], P[3, 1] - P[2, 1], P[3, 2] - P[2, 2]
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    if nx * nx + ny * ny + nz * nz < EE_PARALLEL_SIN2 * a * c:
+        # parallel: IPC Toolkit's parallel classification
+        alpha = _dd(P, 2, 0, 1, 0) / a
+        beta = _dd(P, 3, 0, 1, 0) / a
+        if alpha < 0:
+            eac = 2 if 0 <= beta <= 1 else 0
+            ebc = 0 if beta <= alpha else (1 if beta <= 1 else 2)
+        elif alpha > 1:
+            eac = 2 if 0 <= beta <= 1 else 1
+            ebc = 0 if beta >= alpha else (1 if 0 <= beta else 2)
+        else:
+            eac = 2
+            ebc = 0
+        _ee_features(P, eac, ebc, coef)
         return
     eac, ebc = 2, 2
     sN = b * e - c * d
@@ -141,14 +138,17 @@ def _ee_coefficients(P, coef):
     _ee_features(P, eac, ebc, coef)
 
 
-@njit(cache=True)
-def _edge_side(p, e0, e1, normal):
-    """(along, across) of p in the basis (e1 - e0, (e1 - e0) x normal), solved as ipctk does."""
-    r0 = e1 - e0
-    r1 = np.cross(r0, normal)
-    q = p - e0
-    g00, g01, g11 = r0 @ r0, r0 @ r1, r1 @ r1
-    b0, b1 = r0 @ q, r1 @ q
+@njit(cache=True, inline="always")
+def _edge_side(P, ip, i0, i1, nx, ny, nz):
+    """(along, across) of P[ip] in the basis (e, e x normal), e = P[i1] - P[i0], as ipctk solves it."""
+    rx, ry, rz = P[i1, 0] - P[i0, 0], P[i1, 1] - P[i0, 1], P[i1, 2] - P[i0, 2]
+    sx, sy, sz = ry * nz - rz * ny, rz * nx - rx * nz, rx * ny - ry * nx
+    qx, qy, qz = P[ip, 0] - P[i0, 0], P[ip, 1] - P[i0, 1], P[ip, 2] - P[i0, 2]
+    g00 = rx * rx + ry * ry + rz * rz
+    g01 = rx * sx + ry * sy + rz * sz
+    g11 = sx * sx + sy * sy + sz * sz
+    b0 = rx * qx + ry * qy + rz * qz
+    b1 = sx * qx + sy * qy + sz * qz
     det = g00 * g11 - g01 * g01
     return (g11 * b0 - g01 * b1) / det, (g00 * b1 - g01 * b0) / det
 
@@ -156,17 +156,18 @@ def _edge_side(p, e0, e1, normal):
 @njit(cache=True)
 def _pt_coefficients(P, coef):
     """IPC Toolkit's ``point_triangle_distance_type`` and the coefficients of the type."""
-    p, t0, t1, t2 = P[0], P[1], P[2], P[3]
-    normal = np.cross(t1 - t0, t2 - t0)
-    a0, c0 = _edge_side(p, t0, t1, normal)
+    ux, uy, uz = P[2, 0] - P[1, 0], P[2, 1] - P[1, 1], P[2, 2] - P[1, 2]
+    vx, vy, vz = P[3, 0] - P[1, 0], P[3, 1] - P[1, 1], P[3, 2] - P[1, 2]
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    a0, c0 = _edge_side(P, 0, 1, 2, nx, ny, nz)
     if 0.0 < a0 < 1.0 and c0 >= 0.0:
         _set(coef, 1.0, -(1.0 - a0), -a0, 0.0)
         return
-    a1, c1 = _edge_side(p, t1, t2, normal)
+    a1, c1 = _edge_side(P, 0, 2, 3, nx, ny, nz)
     if 0.0 < a1 < 1.0 and c1 >= 0.0:
         _set(coef, 1.0, 0.0, -(1.0 - a1), -a1)
         return
-    a2, c2 = _edge_side(p, t2, t0, normal)
+    a2, c2 = _edge_side(P, 0, 3, 1, nx, ny, nz)
     if 0.0 < a2 < 1.0 and c2 >= 0.0:
         _set(coef, 1.0, -a2, 0.0, -(1.0 - a2))
         return
@@ -177,12 +178,10 @@ def _pt_coefficients(P, coef):
     elif a2 <= 0.0 and a1 >= 1.0:
         _set(coef, 1.0, 0.0, 0.0, -1.0)
     else:  # the interior: barycentric coordinates of the projection
-        u = t1 - t0
-        v = t2 - t0
-        w = p - t0
-        n2 = normal @ normal
-        bu = (np.cross(w, v) @ normal) / n2
-        bv = (np.cross(u, w) @ normal) / n2
+        wx, wy, wz = P[0, 0] - P[1, 0], P[0, 1] - P[1, 1], P[0, 2] - P[1, 2]
+        n2 = nx * nx + ny * ny + nz * nz
+        bu = ((wy * vz - wz * vy) * nx + (wz * vx - wx * vz) * ny + (wx * vy - wy * vx) * nz) / n2
+        bv = ((uy * wz - uz * wy) * nx + (uz * wx - ux * wz) * ny + (ux * wy - uy * wx) * nz) / n2
         _set(coef, 1.0, -(1.0 - bu - bv), -bu, -bv)
 
 
@@ -206,7 +205,7 @@ def stencil_coefficients(P, kind, coef):
     (``edge_edge_distance_type`` with its parallel branch,
     ``point_triangle_distance_type``), so that near-parallel edges, where several
     feature pairs are almost equally close, pick the same pair and the division
-    plane is the same.
+    plane is the same. Scalar arithmetic only (no temporaries in the kernel).
     """
     if kind == KIND_EDGE_EDGE:
         _ee_coefficients(P, coef)
@@ -215,54 +214,46 @@ def stencil_coefficients(P, kind, coef):
 
 
 @njit(cache=True)
-def _plane_ratio(x, dx, n, p, scaling):
-    denom = dx[0] * n[0] + dx[1] * n[1] + dx[2] * n[2]
-    if abs(denom) < PLANAR_PARALLEL_EPS:
-        return 1.0
-    t = -((x[0] - p[0]) * n[0] + (x[1] - p[1]) * n[1] + (x[2] - p[2]) * n[2]) / denom
-    if t < PLANAR_T_EPS or t >= 1.0 / scaling:
-        return 1.0
-    return scaling * t
-
-
-@njit(cache=True)
 def _planar_ratios(x, dx, stencils, kinds, scaling, ratio):
     P = np.empty((4, 3))
     D = np.empty((4, 3))
     coef = np.zeros(4)
-    dv = np.empty(3)
-    n = np.empty(3)
-    p = np.empty(3)
     for c in range(stencils.shape[0]):
-        nv = 4
-        for j in range(nv):
-            P[j] = x[stencils[c, j]]
-            D[j] = dx[stencils[c, j]]
-        coef[:] = 0.0
+        for j in range(4):
+            v = stencils[c, j]
+            for k in range(3):
+                P[j, k] = x[v, k]
+                D[j, k] = dx[v, k]
         stencil_coefficients(P, kinds[c], coef)
-        for k in range(3):
-            dv[k] = coef[0] * P[0, k] + coef[1] * P[1, k] + coef[2] * P[2, k] + coef[3] * P[3, k]
-        dist = np.sqrt(dv @ dv)
+        dvx = coef[0] * P[0, 0] + coef[1] * P[1, 0] + coef[2] * P[2, 0] + coef[3] * P[3, 0]
+        dvy = coef[0] * P[0, 1] + coef[1] * P[1, 1] + coef[2] * P[2, 1] + coef[3] * P[3, 1]
+        dvz = coef[0] * P[0, 2] + coef[1] * P[1, 2] + coef[2] * P[2, 2] + coef[3] * P[3, 2]
+        dist = np.sqrt(dvx * dvx + dvy * dvy + dvz * dvz)
         if dist < PLANAR_MIN_DIST:
             continue
-        for k in range(3):
-            n[k] = dv[k] / dist
-        c2 = np.zeros(3)
+        nx, ny, nz = dvx / dist, dvy / dist, dvz / dist
+        c2x = c2y = c2z = 0.0
         delta1 = 0.0
         delta2 = 0.0
-        for j in range(nv):
-            dn = D[j] @ n
+        for j in range(4):
+            dn = D[j, 0] * nx + D[j, 1] * ny + D[j, 2] * nz
             if coef[j] > 0.0:
                 delta1 = max(delta1, -dn)
             elif coef[j] < 0.0:
-                for k in range(3):
-                    c2[k] -= coef[j] * P[j, k]
+                c2x -= coef[j] * P[j, 0]
+                c2y -= coef[j] * P[j, 1]
+                c2z -= coef[j] * P[j, 2]
                 delta2 = max(delta2, dn)
         lam = 0.5 if (delta1 == 0.0 and delta2 == 0.0) else delta2 / (delta1 + delta2)
-        for k in range(3):
-            p[k] = c2[k] + lam * dv[k]
-        for j in range(nv):
-            r = _plane_ratio(P[j], D[j], n, p, scaling)
+        px, py, pz = c2x + lam * dvx, c2y + lam * dvy, c2z + lam * dvz
+        for j in range(4):
+            denom = D[j, 0] * nx + D[j, 1] * ny + D[j, 2] * nz
+            if abs(denom) < PLANAR_PARALLEL_EPS:
+                continue  # moving along the plane: never crosses it
+            t = -((P[j, 0] - px) * nx + (P[j, 1] - py) * ny + (P[j, 2] - pz) * nz) / denom
+            if t < PLANAR_T_EPS or t >= 1.0 / scaling:
+                continue
+            r = scaling * t
             v = stencils[c, j]
             if r < ratio[v]:
                 ratio[v] = r
