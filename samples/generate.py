@@ -6,7 +6,8 @@ Importable (``sys.path.insert(0, "samples"); import generate``) and a script::
         [--seed S] [--dtype float32|float64]
     python samples/generate.py SCENE -o OUT_DIR --mesh obj|ply ...
 
-Scenes: rods, cloth, twisting-cloth, twisting-cloth-contact, cables, twisted-cables
+Scenes: rods, cloth, twisting-cloth, twisting-cloth-contact, cables, twisted-cables,
+falling-stack, carried-stack, swinging-coil (fast coherent motion with self-contact)
 (simulated, ``scenes.py``),
 yarn-bundle, cloth-ref (kinematic 64K reference scenes, ``reference.py``).
 Every scene function returns ``(positions, topology, attrs)``; `write_h5`
@@ -38,6 +39,9 @@ SCENES = {
     "cables": scenes.cables,
     "twisting-cloth-contact": scenes.twisting_cloth_contact,
     "twisted-cables": scenes.twisted_cables,
+    "falling-stack": scenes.falling_stack,
+    "carried-stack": scenes.carried_stack,
+    "swinging-coil": scenes.swinging_coil,
     "yarn-bundle": reference.yarn_bundle,
     "cloth-ref": reference.cloth_ref,
 }
@@ -91,6 +95,8 @@ def write_h5(path, positions, topology, attrs, dtype="float32", source=None):
         f.attrs["penfree_format"] = FORMAT_VERSION
         f.attrs["dt"] = float(attrs["dt"])
         f.attrs["thickness"] = float(attrs["thickness"])
+        if attrs.get("contact_radius"):
+            f.attrs["contact_radius"] = float(attrs["contact_radius"])
         f.attrs["source"] = source or attrs["description"]
 
 
