@@ -9,7 +9,8 @@ report.json key reference (schema ``penfree_report`` = 1; NaN and inf are writte
 
 - ``penfree_report``: schema version (1); ``penfree_version``; ``projected_formula``.
 - ``options``: ``cd_share`` (f), ``frame_ms`` (T_frame), ``replay``, ``ladder``,
-  ``frames`` (the ``--frames`` slice or null), ``gamma``.
+  ``frames`` (the ``--frames`` slice or null), ``gamma``; with ``--client``: ``client``,
+  ``truncation``, ``radius``, ``dhat``, ``every``.
 - ``plots``: ``status`` (``written`` | ``skipped`` | ``disabled``), ``reason``,
   ``files`` (PNG names in the report directory), ``per_file`` (the same, one list
   per entry of ``files`` below).
@@ -48,7 +49,9 @@ report.json key reference (schema ``penfree_report`` = 1; NaN and inf are writte
     ``k_1pct_next_sum``, ``k_any_next``, ``hit_rate_next``, ``replay_k_1pct_next``,
     ``replay_k_any_next`` (null without ``--replay``), ``certificate_margin_mean``,
     ``certificate_margin_min``, ``models_used``), ``auto_best_rate`` (fraction of
-    steps on which ``auto``'s actual K_1pct was the best of baseline and fixed models).
+    steps on which ``auto``'s actual K_1pct was the best of baseline and fixed models);
+  - ``client`` (only with ``--client ipctk``): the real-client replay,
+    `penfree.formats.client_report` (``options``, ``summary``, ``steps``).
 """
 
 from __future__ import annotations
