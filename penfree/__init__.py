@@ -25,6 +25,8 @@ _LAZY = {
     "verify_step": ("penfree.core.verify", "verify_step"),
     "trust_region_bounds": ("penfree.core.trust_region", "trust_region_bounds"),
     "predeform": ("penfree.core.predeform", "predeform"),
+    "client_replay_step": ("penfree.core.client", "replay_step"),
+    "client_counts": ("penfree.core.client_stats", "client_counts"),
 }
 
 __all__ = [
