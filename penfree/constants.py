@@ -157,6 +157,8 @@ DEFAULT_CLIENT_TOL_REL = 1e-6
 #: few bound computations).
 CLIENT_SELECT_SHORTLIST = 3
 #: Vertices whose start separation is within this many contact radii are in contact:
-#: the predictor holds them at x (resting contact lives inside the contact radius,
-#: plus a margin for contacts that are about to form).
-CONTACT_HOLD_FACTOR = 1.5
+#: the predictor holds them at x (resting contact lives inside the contact radius).
+#: Not more: on a cloth grid a vertex is ~0.7 edges from the triangle across its
+#: cell's diagonal, and with the usual radius of half an edge a larger factor would
+#: hold every vertex of a free sheet.
+CONTACT_HOLD_FACTOR = 1.0

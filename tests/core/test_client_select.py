@@ -64,7 +64,7 @@ def test_held_target():
     y = held_target(x, x_pred, np.array([0.1, 0.5, 0.1]), dhat=0.1, r_q=0.1)
     # vertex 0: 0.1 <= 1.5 dhat but at the cap r_q (nothing within the query): free
     np.testing.assert_array_equal(y, x_pred)
-    y = held_target(x, x_pred, np.array([0.05, 0.5, 0.15]), dhat=0.1, r_q=1.0)
+    y = held_target(x, x_pred, np.array([0.05, 0.5, 0.09]), dhat=0.1, r_q=1.0)
     np.testing.assert_array_equal(y, [[0, 0, 0], [1, 1, 1], [0, 0, 0]])
 
 
