@@ -25,6 +25,9 @@ _LAZY = {
     "verify_step": ("penfree.core.verify.path", "verify_step"),
     "trust_region_bounds": ("penfree.core.trust.bounds", "trust_region_bounds"),
     "NeighbourList": ("penfree.core.contact.neighbours", "NeighbourList"),
+    "predeform": ("penfree.core.pipeline.predeform", "predeform"),
+    "client_replay_step": ("penfree.core.trust.client", "replay_step"),
+    "client_counts": ("penfree.core.trust.client_stats", "client_counts"),
 }
 
 __all__ = [

@@ -174,3 +174,21 @@ SELECT_TIE_RTOL = 0.02
 #: ... and by more than this absolute amount: r_v is a ratio of lengths, and a map
 #: that reaches the prediction up to rounding has r_v ~ 1e-16, which is no signal.
 SELECT_TIE_ATOL = 1e-9
+
+# --- real-client replay (penfree/core/client.py) ------------------------------
+#: Iterations after the warm start before a replay stops (each is one filtered
+#: step of the solver toward x_next; a converging replay needs a handful).
+DEFAULT_CLIENT_MAX_ITER = 32
+#: A vertex within this fraction of the step's largest recorded move from x_next
+#: has arrived (the iterations land exactly on x_next when not truncated).
+DEFAULT_CLIENT_TOL_REL = 1e-6
+#: `auto` under a client model (penfree/core/client_select.py): candidates replayed
+#: per step besides doing nothing, best static prediction first (each replay costs a
+#: few bound computations).
+CLIENT_SELECT_SHORTLIST = 3
+#: Vertices whose start separation is within this many contact radii are in contact:
+#: the predictor holds them at x (resting contact lives inside the contact radius).
+#: Not more: on a cloth grid a vertex is ~0.7 edges from the triangle across its
+#: cell's diagonal, and with the usual radius of half an edge a larger factor would
+#: hold every vertex of a free sheet.
+CONTACT_HOLD_FACTOR = 1.0

@@ -7,7 +7,8 @@ Importable (``sys.path.insert(0, "samples"); import generate``) and a script::
     python samples/generate.py SCENE -o OUT_DIR --mesh obj|ply ...
 
 Scenes: rods, cloth, twisting-cloth, twisting-cloth-contact, cables, twisted-cables,
-cloth-drape-box (simulated, ``scenes.py``),
+cloth-drape-box, falling-stack, carried-stack, swinging-coil (fast coherent motion with
+self-contact) (simulated, ``scenes.py``),
 yarn-bundle, cloth-ref (kinematic 64K reference scenes, ``reference.py``).
 Every scene function returns ``(positions, topology, attrs)``; `write_h5`
 writes the SPEC section 2 layout and `write_mesh_sequence` numbered OBJ
@@ -39,6 +40,9 @@ SCENES = {
     "twisting-cloth-contact": scenes.twisting_cloth_contact,
     "twisted-cables": scenes.twisted_cables,
     "cloth-drape-box": scenes.cloth_drape_box,
+    "falling-stack": scenes.falling_stack,
+    "carried-stack": scenes.carried_stack,
+    "swinging-coil": scenes.swinging_coil,
     "yarn-bundle": reference.yarn_bundle,
     "cloth-ref": reference.cloth_ref,
 }

@@ -44,12 +44,17 @@ from .options import (
               help="Count each start state's pre-existing intersections (steps/start_intersections; "
                    "about one static verification per step).")
 @click.option("--format", "in_format", default=None, help="Input format (default: from the extension).")
+@click.option("--client-model", type=click.Choice(["isotropic", "planar"]), default=None,
+              help="With --model auto: choose by the predicted CD passes of an OGC client with this truncation "
+                   "(radius rule step; penfree's own replay, no ipctk needed).")
+@click.option("--dhat", type=FiniteFloat(min=0.0, min_open=True), default=None,
+              help="With --client-model: contact offset [default: the contact radius, else the thickness].")
 @usd_options
 @json_option
 @scaleout_options
 def command(input_paths, output_path, model, projection, margin, thickness, contact_radius, frames, weights_name,
-            threads, overwrite, per_vertex, with_stats, check_start, in_format, usd_prims, usd_obstacles, as_json,
-            workers, scheduler):
+            threads, overwrite, per_vertex, with_stats, check_start, in_format, client_model, dhat, usd_prims,
+            usd_obstacles, as_json, workers, scheduler):
     """Fit, certify and apply a global affine map to every step of IN.
 
     Each step s moves frame s toward the prediction 2 x^s - x^(s-1); the straight path
@@ -61,9 +66,9 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
     from ..scaleout import is_scaleout
 
     if is_scaleout(input_paths, workers, scheduler):  # several inputs / Dask: penfree.scaleout
-        if weights_name or usd_prims or usd_obstacles:
-            raise InputError("--weights, --prim and --obstacle are not supported with several inputs, "
-                             "--workers or --scheduler")
+        if weights_name or usd_prims or usd_obstacles or client_model:
+            raise InputError("--weights, --prim, --obstacle and --client-model are not supported with several "
+                             "inputs, --workers or --scheduler")
         from . import scaleout
 
         opts = dict(model=model, projection=projection, margin=margin, thickness=thickness,
@@ -83,6 +88,16 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
     set_threads(threads)
     seq = read_sequence(input_path, format=in_format, prims=usd_prims, obstacles=usd_obstacles)
     weights = _read_weights(input_path, weights_name, seq) if weights_name else None
+    cm = None
+    if client_model:
+        from ..core.pipeline.client_select import ClientModel
+        from ..core.trust.client_stats import resolve_dhat
+
+        if model != "auto":
+            raise InputError(f"--client-model needs --model auto; got --model {model}")
+        cm = ClientModel(truncation=client_model, edges=seq.edges, faces=seq.faces,
+                         dhat=resolve_dhat(dhat, seq.contact_radius if contact_radius is None else contact_radius,
+                                           seq.thickness if thickness is None else thickness))
 
     t0 = time.perf_counter()
     n_steps = len(range(*slice(*(frame_slice or (None, None))).indices(seq.n_frames)))
@@ -90,7 +105,7 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
         result = deform_sequence(
             seq, model=model, projection=projection, margin=margin, thickness=thickness,
             contact_radius=contact_radius, weights=weights, frames=frame_slice, per_vertex=per_vertex, progress=bar,
-            check_start=check_start or with_stats,
+            check_start=check_start or with_stats, client_model=cm,
         )
     groups = dict(result.groups)
     if with_stats:
@@ -101,7 +116,8 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
     attrs = {
         "penfree_version": __version__,
         "input": os.path.basename(input_path),
-        "options": dict(result.options, weights=weights_name or ("weights" if seq.weights is not None else None)),
+        "options": dict(result.options, weights=weights_name or ("weights" if seq.weights is not None else None),
+                        **({"client_model": client_model} if client_model else {})),
     }
     write_result(output_path, seq, result.steps, attrs, groups=groups, overwrite=overwrite)
     elapsed = time.perf_counter() - t0

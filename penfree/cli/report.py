@@ -23,6 +23,17 @@ from .options import (
 @click.option("--frame-ms", type=FiniteFloat(min=0.0, min_open=True), default=DEFAULT_FRAME_MS,
               show_default=True, help="Projected: baseline frame time T_frame in milliseconds.")
 @click.option("--replay", is_flag=True, help="Also estimate CD passes by replay (one bound query per pass).")
+@click.option("--client", type=click.Choice(["ipctk"]), default=None,
+              help="Replay every step through the real OGC client (ipctk.ogc.TrustRegion; pip install 'penfree[ogc]').")
+@click.option("--truncation", type=click.Choice(["isotropic", "planar", "both"]), default="both", show_default=True,
+              help="With --client: the client's step filter (planar = Divide and Truncate).")
+@click.option("--radius", "radius_rule", type=click.Choice(["own", "step", "both"]), default="both",
+              show_default=True, help="With --client: step = keep the radius computed at x; own = ipctk's warm start "
+              "recomputes it from x_def.")
+@click.option("--dhat", type=FiniteFloat(min=0.0, min_open=True), default=None,
+              help="With --client: contact offset [default: the contact radius, else the thickness].")
+@click.option("--every", type=click.IntRange(min=1), default=1, show_default=True,
+              help="With --client: replay every k-th step.")
 @click.option("--no-ladder", is_flag=True, help="Skip the model ladder (re-fits every step with every model).")
 @click.option("--no-plots", is_flag=True, help="Do not write PNG plots.")
 @frames_option
@@ -38,7 +49,8 @@ from .options import (
 @click.option("--max-regression", type=FiniteFloat(min=0.0), default=None, metavar="PCT",
               help="Check: K_1pct, projected speedup and hit rate regress by at most PCT percent vs --baseline.")
 @scaleout_options
-def command(files, outdir, overwrite, cd_share, frame_ms, replay, no_ladder, no_plots, frames, threads, as_json,
+def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, truncation, radius_rule, dhat, every,
+            no_ladder, no_plots, frames, threads, as_json,
             fail_if_uncertified, min_speedup, min_hit_rate_gain, baseline_path, max_regression, workers, scheduler):
     """Report trust-region statistics of `penfree deform` outputs, with optional CI checks.
 
@@ -65,23 +77,35 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, no_ladder, no_
     frame_slice = parse_frames(frames)
     set_threads(threads)
     baseline = load_report_json(baseline_path) if baseline_path else None
+    client_opts = None
+    if client:
+        from ..core.trust.client import load_ipctk
+
+        load_ipctk()  # exit 2 with the install hint before any work
+        client_opts = {"client": client, "truncation": truncation, "radius": radius_rule, "dhat": dhat,
+                       "every": every}
     results = [select_steps(open_result(path), frame_slice) for path in files]  # all inputs checked first
 
     reports = []
     if scale:  # several inputs / Dask: one task per file (penfree.scaleout)
         from . import scaleout
 
+        if client:
+            raise InputError("--client is not supported with --workers or --scheduler")
         opts = dict(frames=frame_slice, cd_share=cd_share, frame_ms=frame_ms, replay=replay, ladder=not no_ladder)
         files, reports = scaleout.report_entries(files, opts, workers=workers, scheduler=scheduler, threads=threads)
     for path, res in zip(files, results if not scale else ()):
-        work = res.n_steps * ((stored_stats(res, replay) is None) + (not no_ladder))
+        work = res.n_steps * ((stored_stats(res, replay) is None) + (not no_ladder)) + (
+            -(-res.n_steps // every) if client else 0)
         with Progress(work, f"report {os.path.basename(path)}") as bar:
             reports.append(make_file_report(path, res, cd_share=cd_share, frame_ms=frame_ms, replay=replay,
-                                            ladder=not no_ladder, progress=bar))
+                                            ladder=not no_ladder, progress=bar, client=client_opts))
     checks = run_checks(reports, fail_if_uncertified=fail_if_uncertified, min_speedup=min_speedup,
                         min_hit_rate_gain=min_hit_rate_gain, baseline=baseline, max_regression=max_regression)
     options = {"cd_share": cd_share, "frame_ms": frame_ms, "replay": replay, "ladder": not no_ladder,
                "frames": frames, "gamma": DEFAULT_GAMMA}
+    if client:
+        options.update(client_opts)
     doc = write_report(outdir, reports, overwrite, options=options, checks=checks, plots=not no_plots)
     if as_json:
         echo_json(doc)

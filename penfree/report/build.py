@@ -13,7 +13,8 @@ report.json key reference (schema ``penfree_report`` = 1; NaN and inf are writte
 
 - ``penfree_report``: schema version (1); ``penfree_version``; ``projected_formula``.
 - ``options``: ``cd_share`` (f), ``frame_ms`` (T_frame), ``replay``, ``ladder``,
-  ``frames`` (the ``--frames`` slice or null), ``gamma``.
+  ``frames`` (the ``--frames`` slice or null), ``gamma``; with ``--client``: ``client``,
+  ``truncation``, ``radius``, ``dhat``, ``every``.
 - ``plots``: ``status`` (``written`` | ``skipped`` | ``disabled``), ``reason``,
   ``files`` (PNG names in the report directory), ``per_file`` (the same, one list
   per entry of ``files`` below).
@@ -53,7 +54,9 @@ report.json key reference (schema ``penfree_report`` = 1; NaN and inf are writte
     ``k_1pct_next_sum``, ``k_any_next``, ``hit_rate_next``, ``replay_k_1pct_next``,
     ``replay_k_any_next`` (null without ``--replay``), ``certificate_margin_mean``,
     ``certificate_margin_min``, ``models_used``), ``auto_best_rate`` (fraction of
-    steps on which ``auto``'s actual K_1pct was the best of baseline and fixed models).
+    steps on which ``auto``'s actual K_1pct was the best of baseline and fixed models);
+  - ``client`` (only with ``--client ipctk``): the real-client replay,
+    `penfree.report.client` (``options``, ``summary``, ``steps``).
 """
 
 from __future__ import annotations
@@ -260,7 +263,7 @@ def stored_stats(result, replay=False):
 
 
 def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAULT_FRAME_MS, replay=False,
-                     ladder=True, progress=None) -> dict:
+                     ladder=True, progress=None, client=None) -> dict:
     """Statistics (read or computed), model ladder and the report entry of one result.
 
     Parameters
@@ -277,6 +280,9 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
         Re-fit every step with every model of the ladder.
     progress : callable, optional
         Called once per step of each computing phase (statistics, ladder).
+    client : dict, optional
+        Options of the real-client replay (`penfree.report.client.client_section`); its
+        section is stored under ``client``.
     """
     stats = stored_stats(result, replay)
     source = "file"
@@ -292,8 +298,13 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
                            thickness=seq.thickness, weights=seq.weights, margins=steps.get("margin_required"),
                            projection=projection, replay=replay, progress=progress,
                            contact_radius=seq.contact_radius)
-    return build_file_report(path, result, stats, ladder=lad, cd_share=cd_share, frame_ms=frame_ms,
-                             stats_source=source)
+    rep = build_file_report(path, result, stats, ladder=lad, cd_share=cd_share, frame_ms=frame_ms,
+                            stats_source=source)
+    if client:
+        from .client import client_section
+
+        rep["client"] = client_section(result, progress=progress, **client)
+    return rep
 
 
 def load_report_json(path) -> dict:
@@ -624,6 +635,10 @@ def render_markdown(doc) -> str:
            f"Frame times and speedups are *projected*, not measured: {PROJECTED_FORMULA}.\n"]
     for i, rep in enumerate(doc["files"]):
         out.append(_file_md(rep))
+        if rep.get("client"):
+            from .client import client_markdown
+
+            out.append(client_markdown(rep["client"]))
         files = (doc["plots"].get("per_file") or [[]] * len(doc["files"]))[i]
         if files:
             out.append("### Plots\n")

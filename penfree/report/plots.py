@@ -152,6 +152,10 @@ def write_plots(outdir, reports) -> dict:
         kinds = [("hit_rate", _hit_rate), ("cd_passes", _cd_passes), ("r_hist", _r_hist)]
         if rep.get("ladder"):
             kinds.append(("ladder", _ladder))
+        if rep.get("client"):
+            from .client import client_plot
+
+            kinds.append(("client_passes", lambda r: client_plot(r["client"], r["name"])))
         for kind, make in kinds:
             name = f"{stem}_{kind}.png"
             _save(lib, make(rep), os.path.join(outdir, name))

@@ -326,7 +326,6 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
         As in `fit_step` and `trust_region_bounds`.
     out : (N, 3) array or None
         Where to write the chosen `x_def`.
-
     Returns
     -------
     result : StepResult
@@ -338,6 +337,14 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
 
     Notes
     -----
+    Integration contract: the predictions assume the simulator keeps the query
+    radius of `x` (rule ``step``) after moving to the chosen ``x_def``; a client
+    that recomputes it from ``x_def`` (ipctk's ``warm_start_time_step``, rule
+    ``own``) gets smaller trust regions and may need more passes than predicted
+    (README, "Using penfree inside a simulator"; `penfree.predeform`). To choose by
+    an OGC client's replayed CD passes instead of the static K_1pct, the pipeline
+    re-orders `ranked_candidates` with `penfree.core.pipeline.client_select`.
+
     Cost: one moment pass, then per distinct candidate one fused O(N) pass that
     predicts without forming x_def (`predict_map_passes`) and one pass over the ratios
     for the percentile; x_def is written once, for the chosen map. No neighbourhood

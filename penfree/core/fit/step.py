@@ -129,6 +129,14 @@ def fit_step(x_prev, x, *, weights=None, model="affine", projection="auto", marg
 
     Notes
     -----
+    Integration contract (inside a simulator loop; `penfree.predeform` does all of
+    it): start the step from ``x_def`` but keep the OGC query / inflation radius the
+    simulator computed at ``x`` *before* the move, ``max(2 dhat, max_v |x_pred -
+    x|)`` (ipctk: set ``trust_region_inflation_radius`` and call ``update`` rather
+    than ``warm_start_time_step``). Recomputing it from ``|x_pred - x_def|`` shrinks
+    every free vertex's trust region and can cost more CD passes than doing
+    nothing (README, "Using penfree inside a simulator").
+
     Guarantees: (a) ``certify(result.A, margin)`` is True: the fast test is
     tried first, the exact one when it is inconclusive, and a map neither
     certifies is replaced by the translation (``D = 0``); (b) the map's

@@ -56,7 +56,8 @@ def required_margin(thickness, margin=None) -> float:
 
 
 def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thickness=None, contact_radius=None,
-                    weights=None, frames=None, per_vertex=False, progress=None, check_start=False) -> DeformOutput:
+                    weights=None, frames=None, per_vertex=False, progress=None, check_start=False,
+                    client_model=None) -> DeformOutput:
     """Fit, certify, check and apply one map per step of `seq`.
 
     Parameters
@@ -84,6 +85,9 @@ def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thic
         Also keep per-vertex residual norms (S, N) float32.
     progress : callable or None
         Called once per finished step.
+    client_model : client_select.ClientModel or None
+        With ``model="auto"``: the candidate with the fewest CD passes of that OGC client
+        (replayed by penfree's own client, radius rule ``step``) is tried first.
     check_start : bool
         Also count each start state's pre-existing intersections
         (``start_intersections``, `start_state_intersections`); costs about a static
@@ -107,19 +111,13 @@ def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thic
     weights = seq.weights if weights is None else weights
     S_idx = step_indices(seq.n_frames, frames)
     m = required_margin(thickness, margin)
-    strategy = make_strategy(model, seq, projection, thickness, S_idx.size)
+    strategy = make_strategy(model, seq, projection, thickness, S_idx.size, client_model)
     out = _allocate(seq, S_idx, per_vertex)
     if check_start:
         out["start_intersections"] = start_state_intersections(seq, S_idx)
     _warm_up(seq, S_idx[0], model, projection)
     for k, s in enumerate(S_idx):
-        gate = StepGate(seq.positions[s], edges=seq.edges, faces=seq.faces, thickness=thickness,
-                        obstacles=seq.obstacles, frame=s)
-        step = step_input(seq, s, m, gate, weights, contact_radius)
-        outcome = next(o for o in with_shortened(strategy.outcomes(step), step) if gate.passes(o.x_def, o.maps))
-        for A_applied, _, _ in outcome.maps:  # belt and braces: every applied map through the one gate
-            if not certify_map(A_applied, m):
-                raise CertificateError(f"step {s}: the applied map failed the exact certificate (margin {m})")
+        step, outcome = run_step(seq, s, strategy, m, thickness, weights, contact_radius)
         strategy.record(k, outcome)
         _record(out, k, step, outcome, seq, per_vertex)
         if progress is not None:
@@ -128,6 +126,23 @@ def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thic
     out["projection"] = out["projection"].astype(str)
     options = run_options(model, projection, m, thickness, contact_radius, frames, per_vertex)
     return DeformOutput(steps=out, options=options, groups=strategy.groups())
+
+
+def run_step(seq, s, strategy, m, thickness, weights, contact_radius):
+    """Step `s`: the strategy's outcomes, then shortened steps, then doing nothing; the
+    first that passes the step's gate. Returns ``(StepInput, Outcome)``.
+
+    Raises CertificateError if the applied map fails the exact certificate (never
+    expected: the gate certified it).
+    """
+    gate = StepGate(seq.positions[s], edges=seq.edges, faces=seq.faces, thickness=thickness,
+                    obstacles=seq.obstacles, frame=s)
+    step = step_input(seq, s, m, gate, weights, contact_radius)
+    outcome = next(o for o in with_shortened(strategy.outcomes(step), step) if gate.passes(o.x_def, o.maps))
+    for A_applied, _, _ in outcome.maps:  # belt and braces: every applied map through the one gate
+        if not certify_map(A_applied, m):
+            raise CertificateError(f"step {s}: the applied map failed the exact certificate (margin {m})")
+    return step, outcome
 
 
 def run_options(model, projection, margin, thickness, contact_radius, frames, per_vertex) -> dict:

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...constants import MODELS, SHORTEN_LEVELS
+from ...errors import InputError
 from ..fit.certificate import certified_margin
 from ..verify.gate import StepGate
 from ..trust.stats import contact_distance, query_radius
@@ -132,21 +133,25 @@ class SingleMap:
 
 
 class Auto:
-    """The candidates of `selection`, in order of predicted CD passes."""
+    """The candidates of `penfree.core.fit.auto`, in order of predicted CD passes (or, with a
+    `client_select.ClientModel`, the one with the fewest replayed client passes first)."""
 
-    def __init__(self, seq, projection="auto", thickness=0.0, n_steps=0):
+    def __init__(self, seq, projection="auto", thickness=0.0, n_steps=0, client_model=None, d_start=None):
         from ..trust.bounds import scene_arrays
 
         _, self.E, self.F = scene_arrays(seq.positions[0], seq.edges, seq.faces)
         self.obstacles = seq.obstacles
         self.projection, self.thickness = projection, thickness
+        self.client_model = client_model
+        self.d_start = d_start  # per-vertex scene separations the caller already has (predeform's bounds)
         self.tables = [None] * n_steps
 
     def outcomes(self, step: StepInput):
         from ..fit.auto import candidate_result, candidate_table, rank, ranked_candidates
         from ..trust.bounds import obstacle_separation, per_vertex_separation
 
-        d_start = per_vertex_separation(step.x64, self.E, self.F, step.r_q)
+        d_start = (per_vertex_separation(step.x64, self.E, self.F, step.r_q) if self.d_start is None
+                   else np.minimum(self.d_start, step.r_q))
         if self.obstacles:
             d_start = np.minimum(d_start, obstacle_separation(step.x64, self.E, self.F, self.obstacles,
                                                               step.r_q, step.s))
@@ -154,7 +159,13 @@ class Auto:
         x, x_prev, m, cands = ranked_candidates(step.x_prev, step.x, d_start, r_q=step.r_q,
                                                 thickness=self.thickness, weights=step.weights,
                                                 margin=step.margin, projection=self.projection)
-        for k in rank(cands):
+        order = rank(cands)
+        if self.client_model is not None:  # the client's replayed passes pick the first; the rest as ranked
+            from .client_select import choose_by_client
+
+            best = choose_by_client(cands, x_prev, x, m.c, d_start, self.client_model, self.thickness, step.r_q)
+            order = [best] + [k for k in order if k != best]
+        for k in order:
             o = from_step_result(candidate_result(x_prev, x, m, cands[k], t0))
             o.extra["table"] = candidate_table(cands, k)
             yield o
@@ -215,12 +226,14 @@ def _component_outcome(cs, labels) -> Outcome:
                    cs.certificate_margin, cs.rank, cs.time_fit_s, maps, extra)
 
 
-def make_strategy(model, seq, projection, thickness, n_steps):
-    """The strategy of a ``--model`` value."""
+def make_strategy(model, seq, projection, thickness, n_steps, client_model=None):
+    """The strategy of a ``--model`` value (`client_model` only with ``auto``)."""
+    if client_model is not None and model != "auto":
+        raise InputError(f"a client model needs model auto; got {model!r}")
     if model == "per-component":
         return PerComponent(seq, projection, thickness, n_steps)
     if model == "auto" and seq.kind != "points":
-        return Auto(seq, projection, thickness, n_steps)
+        return Auto(seq, projection, thickness, n_steps, client_model)
     return SingleMap(model, projection)
 
 

@@ -1,0 +1,149 @@
+"""`auto` by the client: the candidate map with the fewest predicted client CD passes.
+
+The static prediction of `selection` holds the bounds fixed and compares every
+vertex with ``x_pred``. What a simulator's OGC client actually spends depends on
+two things it misses:
+
+* **the radius cap.** The client's inflation radius caps every vertex's region.
+  Under the radius rule ``step`` (how a pre-deformation is integrated: the
+  simulator keeps the radius it computed at ``x``) the cap is the same for every
+  candidate; under ``own`` it shrinks when ``x_def`` is closer to ``x_pred``.
+* **contact vertices that should not move.** Vertices in contact (start separation
+  within `CONTACT_HOLD_FACTOR` contact radii) barely move in reality: the solver
+  holds them, whatever ``x_pred`` says. A map that moves them spends their small
+  bounds and costs passes to bring them back.
+
+The predictor therefore replays each shortlisted candidate through penfree's own
+client (`client.replay_step` with ``client="own"``: the same warm start, filters and
+1% update rule as ``ipctk.ogc.TrustRegion``), warm-starting toward ``x_pred`` and
+iterating toward the *held target* ``y_hat`` (``x_pred`` for free vertices, ``x``
+for contact vertices), and again toward ``(x + y_hat) / 2`` (the solver stopping
+half-way: contacts, damping, turning motion). The score is the sum of the two
+pass counts. Doing nothing is always replayed; a candidate replaces it only with a
+strictly smaller score and no more passes toward ``y_hat`` than doing nothing (ties
+go to doing nothing).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ... import constants as K
+from ...errors import InputError
+from ..fit import models as _fit
+from ..trust.client import RADIUS_RULES, TRUNCATIONS, replay_step
+
+
+@dataclass
+class ClientModel:
+    """The client `auto` predicts for (``--client-model``).
+
+    Attributes
+    ----------
+    truncation : {"isotropic", "planar"}
+    dhat : float > 0
+        Contact offset (the sequence's contact radius, else its thickness).
+    radius : {"step", "own"}
+        Radius rule the simulator follows (default ``step``).
+    edges, faces : int arrays
+        Topology.
+    shortlist : int
+        Candidates (besides doing nothing) replayed per step, best static first.
+    """
+
+    truncation: str
+    dhat: float
+    radius: str = "step"
+    edges: object = None
+    faces: object = None
+    shortlist: int = K.CLIENT_SELECT_SHORTLIST
+
+    def __post_init__(self):
+        if self.truncation not in TRUNCATIONS:
+            raise InputError(f"client model truncation must be one of {TRUNCATIONS}; got {self.truncation!r}")
+        if self.radius not in RADIUS_RULES:
+            raise InputError(f"client model radius rule must be one of {RADIUS_RULES}; got {self.radius!r}")
+        if not (np.isfinite(self.dhat) and self.dhat > 0):
+            raise InputError(f"client model dhat must be > 0; got {self.dhat}")
+
+
+def held_target(x, x_pred, d_start, dhat, r_q=np.inf):
+    """``y_hat``: `x_pred`, with the contact vertices held at `x`.
+
+    A vertex is in contact when its start separation (capped at `r_q`: a vertex at
+    the cap has nothing within the query) is at most `CONTACT_HOLD_FACTOR` `dhat`.
+    """
+    d_start = np.asarray(d_start)
+    hold = (d_start <= K.CONTACT_HOLD_FACTOR * float(dhat)) & (d_start < r_q)
+    y = np.array(x_pred, dtype=np.float64)
+    y[hold] = np.asarray(x, dtype=np.float64)[hold]
+    return y
+
+
+def _static_order(cands):
+    """Candidate indices (doing nothing excluded) best static prediction first."""
+    idx = range(1, len(cands))
+    return sorted(idx, key=lambda i: (cands[i].predicted["k_1pct"], cands[i].predicted["r_q99"], i))
+
+
+def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.inf) -> int:
+    """Index of the candidate with the fewest predicted client passes (module doc).
+
+    Fills ``predicted["client_passes"]`` of the replayed candidates (others keep
+    none). Candidate 0 must be doing nothing.
+    """
+    x64 = np.asarray(x, dtype=np.float64)
+    x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
+    y_hat = held_target(x64, x_pred, d_start, model.dhat, r_q)
+    # The solver rarely lands on the prediction: a move must also pay off when it
+    # gets only half-way there (contacts, damping, a turning motion).
+    y_half = 0.5 * (x64 + y_hat)
+
+    def replay(x_def, y, max_iter):
+        return replay_step(x_def, x64, x_pred, y, edges=model.edges, faces=model.faces, dhat=model.dhat,
+                           thickness=thickness, truncation=model.truncation, radius=model.radius, client="own",
+                           max_iter=max_iter)["passes"]
+
+    def passes(cand, none=None):
+        if cand.D.any() or cand.u.any():
+            x_def, _ = _fit.apply_map(x, cand.D, cand.u, c)
+            x_def = np.asarray(x_def, dtype=np.float64)
+        else:
+            x_def = x64
+        if none is None:
+            return replay(x_def, y_hat, K.DEFAULT_CLIENT_MAX_ITER), replay(x_def, y_half, K.DEFAULT_CLIENT_MAX_ITER)
+        # A replay stopped after k iterations that each asked for a CD pass has at
+        # least k + 1 passes: with these caps a stopped candidate always loses, so
+        # the comparison below is the same as with full replays (and far cheaper).
+        p0 = replay(x_def, y_hat, none[0])
+        if p0 > none[0]:
+            return p0, none[1] + 1
+        return p0, replay(x_def, y_half, max(0, sum(none) - p0))
+
+    none = passes(cands[0])
+    cands[0].predicted["client_passes"] = none[0]
+    cands[0].predicted["client_passes_half"] = none[1]
+    best, best_p = 0, none
+    seen = {}
+    n = 0
+    for i in _static_order(cands):
+        key = (cands[i].A.tobytes(), cands[i].u.tobytes())
+        if key in seen:
+            cands[i].predicted.update({k: cands[seen[key]].predicted[k]
+                                       for k in ("client_passes", "client_passes_half")})
+            continue
+        if n >= model.shortlist:
+            break
+        seen[key] = i
+        n += 1
+        p = passes(cands[i], none)
+        cands[i].predicted["client_passes"], cands[i].predicted["client_passes_half"] = p
+        # The score is the passes toward the target plus those toward the half-way
+        # point; a candidate must lower it strictly, and must not need more passes
+        # than doing nothing toward the target. Ties go to the simpler (earlier)
+        # candidate, doing nothing first.
+        if sum(p) < sum(best_p) and p[0] <= none[0]:
+            best, best_p = i, p
+    return best

@@ -1,0 +1,252 @@
+"""Replay of a step through an OGC trust-region client: the CD passes it really needs.
+
+The client is IPC Toolkit's ``ipctk.ogc.TrustRegion`` (``client="ipctk"``, the
+optional extra ``penfree[ogc]``) or penfree's own re-implementation of it
+(``client="own"``: `trust_region_bounds` for the radii and `penfree.core.planar`
+for the filters; no ipctk needed, used by `auto` to predict). One replay of a step,
+from a start state ``x_s`` (the recorded ``x`` = baseline, or ``x_def``):
+
+1. **Warm start.** Radius rule ``own``: ``warm_start_time_step`` (its inflation
+   radius is ``max(2 dhat, max_v |x_pred - x_s|)``, one CD pass, an isotropic move
+   toward ``x_pred`` within the radii, a second pass when more than 1% of the
+   vertices were truncated). Radius rule ``step``: the inflation radius the
+   simulator computed at the recorded ``x``, ``max(2 dhat, max_v |x_pred - x|)``,
+   is set, then ``update`` (one CD pass) and a move toward ``x_pred`` filtered by
+   the truncation under test, and ``update`` again if the filter asked for it.
+2. **Iterations.** The proposed step is the rest of the way to ``x_next``
+   (``x_next - x_cur``), filtered by ``filter_step`` (isotropic) or
+   ``planar_filter_step`` (planar); ``update`` runs whenever the filter set
+   ``should_update_trust_region`` (more than 1% of the vertices truncated).
+3. **Stopping.** When every vertex is within ``tol`` of ``x_next``; or after an
+   iteration that asked for no update (the vertices that reached their target stay
+   there, the fewer than 1% still truncated are what the client tolerates: one
+   more iteration would repeat the same filter without a CD pass); or after
+   ``max_iter`` iterations.
+4. **Count.** CD passes (every ``update``, the first included) and iterations.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ... import constants as K
+from ...errors import InputError
+from .planar import (
+    KIND_EDGE_EDGE, KIND_VERTEX_FACE, RELAXED_RADIUS_SCALING, ball_ratio, candidate_stencils, isotropic_filter,
+    planar_filter,
+)
+from .bounds import per_vertex_separation, scene_arrays
+
+TRUNCATIONS = ("isotropic", "planar")
+RADIUS_RULES = ("own", "step")
+CLIENTS = ("ipctk", "own")
+#: How to get the real client when it is missing (printed by the CLI, exit 2).
+IPCTK_HINT = "the real-client replay needs IPC Toolkit: pip install 'penfree[ogc]' (ipctk 1.6.1)"
+
+
+def load_ipctk():
+    """Import ipctk or raise `InputError` saying how to install it."""
+    try:
+        import ipctk
+    except ImportError as exc:
+        raise InputError(f"{IPCTK_HINT} ({exc})") from None
+    if not hasattr(ipctk, "ogc") or not hasattr(ipctk.ogc, "TrustRegion"):
+        raise InputError(f"{IPCTK_HINT}; the installed ipctk has no ogc.TrustRegion")
+    return ipctk
+
+
+def inflation_radius(x, x_pred, dhat) -> float:
+    """ipctk's warm-start radius ``max(2 dhat, max_v |x_pred - x|)``."""
+    d = np.linalg.norm(np.asarray(x_pred, dtype=np.float64) - np.asarray(x, dtype=np.float64), axis=1)
+    return max(2.0 * float(dhat), float(d.max()) if d.size else 0.0)
+
+
+class IpctkClient:
+    """``ipctk.ogc.TrustRegion`` behind the small interface the replay drives."""
+
+    def __init__(self, V, E, F, dhat, thickness, truncation):
+        ipctk = load_ipctk()
+        self._ipctk = ipctk
+        E_ = np.asfortranarray(E, dtype=np.int32).reshape(-1, 2)
+        F_ = np.asfortranarray(F, dtype=np.int32).reshape(-1, 3)
+        self.mesh = ipctk.CollisionMesh(np.asfortranarray(V, dtype=np.float64), E_, F_)
+        self.tr = ipctk.ogc.TrustRegion(float(dhat))
+        self.collisions = ipctk.NormalCollisions()
+        self.dhat, self.thickness, self.truncation = float(dhat), float(thickness), truncation
+
+    def set_radius(self, R):
+        self.tr.trust_region_inflation_radius = float(R)
+
+    def update(self, x):
+        self.tr.update(self.mesh, np.asfortranarray(x), self.collisions, self.thickness)
+        self.tr.should_update_trust_region = False
+
+    def warm_start(self, x, x_pred):
+        """ipctk's own warm start; returns the moved x and its CD passes (1 or 2)."""
+        xs = np.array(x, dtype=np.float64, order="F")
+        x0 = xs.copy()
+        self.tr.warm_start_time_step(self.mesh, xs, np.asfortranarray(x_pred, dtype=np.float64), self.collisions,
+                                     self.dhat, self.thickness)
+        # The second, conditional update re-centres the regions at the moved x.
+        second = not np.array_equal(np.asarray(self.tr.trust_region_centers), x0)
+        self.tr.should_update_trust_region = False
+        return np.ascontiguousarray(xs), 1 + int(second)
+
+    def filter(self, x, dx):
+        d = np.array(dx, dtype=np.float64, order="F")
+        xf = np.asfortranarray(x, dtype=np.float64)
+        if self.truncation == "planar":
+            self.tr.planar_filter_step(self.mesh, xf, d)
+        else:
+            self.tr.filter_step(self.mesh, xf, d)
+        flag = bool(self.tr.should_update_trust_region)
+        return np.ascontiguousarray(d), flag
+
+
+class OwnClient:
+    """penfree's re-implementation of the client (same interface as `IpctkClient`).
+
+    Radii ``(s / 2) min(R - thickness, d_v - thickness)`` with ``s`` =
+    `RELAXED_RADIUS_SCALING` (= gamma_p 0.45 times 2), the candidates of the planar
+    filter from penfree's broad phase within ``R + thickness``.
+    """
+
+    def __init__(self, V, E, F, dhat, thickness, truncation):
+        _, self.E, self.F = scene_arrays(V, E, F)
+        self.dhat, self.thickness, self.truncation = float(dhat), float(thickness), truncation
+        self.R = 2.0 * self.dhat
+        self.n = np.asarray(V).shape[0]
+
+    def set_radius(self, R):
+        self.R = float(R)
+
+    def update(self, x):
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        self.centers = x.copy()
+        d = per_vertex_separation(x, self.E, self.F, self.R)
+        self.radii = 0.5 * RELAXED_RADIUS_SCALING * np.maximum(0.0, d - self.thickness)
+        if self.truncation == "planar":
+            self.stencils, self.kinds = candidate_stencils(x, self.E, self.F, self.R + self.thickness)
+
+    def warm_start(self, x, x_pred):
+        x = np.array(x, dtype=np.float64)
+        self.set_radius(inflation_radius(x, x_pred, self.dhat))
+        self.update(x)
+        beta = ball_ratio(x, x_pred - x, x, self.radii)
+        trunc = beta < 1.0
+        x_new = np.where(trunc[:, None], x + np.minimum(beta, 1.0)[:, None] * (x_pred - x), x_pred)
+        passes = 1
+        if np.count_nonzero(trunc) > 0.01 * self.n:
+            self.update(x_new)
+            passes += 1
+        return x_new, passes
+
+    def filter(self, x, dx):
+        if self.truncation == "planar":
+            out, n_trunc = planar_filter(x, dx, self.centers, self.R, self.stencils, self.kinds)
+        else:
+            out, n_trunc = isotropic_filter(x, dx, self.centers, self.radii)
+        return out, n_trunc > 0.01 * self.n
+
+
+def make_client(client, V, E, F, dhat, thickness, truncation):
+    """An `IpctkClient` or `OwnClient` for one replay."""
+    if client not in CLIENTS:
+        raise InputError(f"client must be one of {CLIENTS}; got {client!r}")
+    if truncation not in TRUNCATIONS:
+        raise InputError(f"truncation must be one of {TRUNCATIONS}; got {truncation!r}")
+    if not (np.isfinite(dhat) and dhat > 0):
+        raise InputError(f"dhat must be finite and > 0 (give --dhat or a contact_radius); got {dhat}")
+    cls = IpctkClient if client == "ipctk" else OwnClient
+    return cls(V, E, F, dhat, thickness, truncation)
+
+
+def replay_step(x_s, x, x_pred, x_next, *, edges=None, faces=None, dhat, thickness=0.0, truncation="isotropic",
+                radius="step", client="ipctk", tol=None, max_iter=K.DEFAULT_CLIENT_MAX_ITER) -> dict:
+    """CD passes and iterations of one step replayed through the client (module doc).
+
+    Parameters
+    ----------
+    x_s : (N, 3) float
+        Start state: the recorded `x` (baseline) or penfree's `x_def`.
+    x, x_pred, x_next : (N, 3) float
+        Recorded start, prediction ``2 x - x_prev`` (the warm-start target) and the
+        recorded next frame (the target of the iterations).
+    edges, faces : int arrays, optional
+        Topology (as `trust_region_bounds`).
+    dhat : float > 0
+        Contact offset of the client (``TrustRegion(dhat)``; radius floor ``2 dhat``).
+    thickness : float
+        ``min_distance`` of the client's CD.
+    truncation : {"isotropic", "planar"}
+    radius : {"step", "own"}
+        ``step``: keep the inflation radius of the recorded `x`; ``own``: ipctk's
+        warm start recomputes it from `x_s`.
+    client : {"ipctk", "own"}
+    tol : float, optional
+        Distance to `x_next` counted as arrived (default `DEFAULT_CLIENT_TOL_REL`
+        times ``max_v |x_next - x|``, at least 1e-12).
+    max_iter : int
+        Cap on iterations after the warm start.
+
+    Returns
+    -------
+    dict
+        ``passes`` (CD passes, >= 1), ``iterations``, ``converged`` (all vertices
+        within `tol` of `x_next`), ``n_truncated`` (vertices farther than `tol` at
+        the end).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> x = np.array([[0.0, 0, 0], [1, 0, 0], [0, 0, 1], [1, 0, 1]])
+    >>> r = replay_step(x, x, x + 0.001, x + 0.002, edges=[[0, 1], [2, 3]], dhat=0.01, client="own")
+    >>> r["passes"], r["converged"]
+    (1, True)
+    """
+    x_s = np.array(x_s, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
+    x_pred = np.asarray(x_pred, dtype=np.float64)
+    x_next = np.asarray(x_next, dtype=np.float64)
+    if radius not in RADIUS_RULES:
+        raise InputError(f"radius rule must be one of {RADIUS_RULES}; got {radius!r}")
+    for name, a in (("x", x), ("x_pred", x_pred), ("x_next", x_next)):
+        if a.shape != x_s.shape or a.ndim != 2 or a.shape[1] != 3:
+            raise InputError(f"{name} must be (N, 3) like x_s {x_s.shape}; got {a.shape}")
+    E = np.zeros((0, 2), np.int64) if edges is None else np.asarray(edges)
+    F = np.zeros((0, 3), np.int64) if faces is None else np.asarray(faces)
+    if F.size:  # a triangle scene: the client's edges are the face edges
+        _, E, F = scene_arrays(x, E, F)
+    cl = make_client(client, x, E, F, dhat, thickness, truncation)
+    if tol is None:
+        span = float(np.linalg.norm(x_next - x, axis=1).max()) if x.shape[0] else 0.0
+        tol = max(1e-12, K.DEFAULT_CLIENT_TOL_REL * span)
+    if radius == "own":
+        xc, passes = cl.warm_start(x_s, x_pred)
+    else:
+        cl.set_radius(inflation_radius(x, x_pred, dhat))
+        cl.update(x_s)
+        dx, flag = cl.filter(x_s, x_pred - x_s)
+        xc = x_s + dx
+        passes = 1
+        if flag:
+            cl.update(xc)
+            passes += 1
+    iterations = 0
+    for _ in range(int(max_iter)):
+        dx = x_next - xc
+        if float(np.abs(dx).max(initial=0.0)) <= tol and not (np.linalg.norm(dx, axis=1) > tol).any():
+            break
+        dx, flag = cl.filter(xc, dx)
+        xc = xc + dx
+        iterations += 1
+        if not flag:
+            break
+        cl.update(xc)
+        passes += 1
+    left = int(np.count_nonzero(np.linalg.norm(x_next - xc, axis=1) > tol))
+    return {"passes": passes, "iterations": iterations, "converged": left == 0, "n_truncated": left}
+
+
+__all__ = ["replay_step", "inflation_radius", "load_ipctk", "make_client", "TRUNCATIONS", "RADIUS_RULES",
+           "CLIENTS", "IPCTK_HINT", "KIND_EDGE_EDGE", "KIND_VERTEX_FACE"]

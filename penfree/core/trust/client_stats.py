@@ -1,0 +1,121 @@
+"""Real-client CD passes of a deformed sequence: every step replayed from `x` and `x_def`.
+
+Per-step keys of `client_counts` (``(S,)`` arrays over the replayed steps; ``<tr>``
+is a truncation, ``<rule>`` a radius rule):
+
+=====================================  =============================================
+``frame``                              the step's frame index ``s`` (int64)
+``passes_<tr>_baseline``               CD passes from the recorded ``x`` (both radius
+``iterations_<tr>_baseline``           rules coincide there: the radius is x's own)
+``passes_<tr>_<rule>_deformed``        CD passes from ``x_def`` under the radius rule
+``iterations_<tr>_<rule>_deformed``
+``model``                              the map `deform` applied (``none`` = x_def is x)
+=====================================  =============================================
+
+Only steps with a next frame are replayed (the iterations go to ``x_next``), every
+``every``-th of them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...errors import InputError
+from .client import RADIUS_RULES, TRUNCATIONS, load_ipctk, replay_step
+
+
+def resolve_dhat(dhat, contact_radius, thickness) -> float:
+    """`dhat` if given, else the contact radius, else the thickness; InputError when all are 0."""
+    for v in (dhat, contact_radius, thickness):
+        if v is not None and float(v) > 0:
+            return float(v)
+    raise InputError("the client replay needs a contact offset dhat > 0: give --dhat "
+                     "(the sequence has neither contact_radius nor thickness)")
+
+
+def expand(choice, options) -> tuple:
+    """``"both"`` -> all options; a single name -> a 1-tuple (validated)."""
+    if choice == "both":
+        return tuple(options)
+    if choice not in options:
+        raise InputError(f"expected one of {options} or 'both'; got {choice!r}")
+    return (choice,)
+
+
+def client_counts(positions, deformed, frames, *, edges=None, faces=None, dhat, thickness=0.0,
+                  truncations=TRUNCATIONS, radii=RADIUS_RULES, every=1, client="ipctk", models=None,
+                  progress=None) -> dict:
+    """Replay every `every`-th step with a next frame through the client (module doc).
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float
+    deformed : (S, N, 3) float
+        ``x_def`` per step of `frames`.
+    frames : (S,) int
+    edges, faces : topology
+    dhat, thickness : float
+    truncations, radii : tuple of str
+    every : int >= 1
+    client : {"ipctk", "own"}
+    models : (S,) str, optional
+        The applied model per step (copied into the output).
+    progress : callable, optional
+        Called once per replayed step.
+
+    Returns
+    -------
+    dict of str -> ndarray
+    """
+    if client == "ipctk":
+        load_ipctk()
+    every = int(every)
+    if every < 1:
+        raise InputError(f"--every must be >= 1; got {every}")
+    frames = np.asarray(frames, dtype=np.int64)
+    T = positions.shape[0]
+    pick = [i for i in np.flatnonzero(frames + 1 < T)][::every]
+    out = {"frame": frames[pick].copy()}
+    if models is not None:
+        out["model"] = np.asarray(models)[pick].astype(str)
+    for tr in truncations:
+        for key in ("passes", "iterations"):
+            out[f"{key}_{tr}_baseline"] = np.zeros(len(pick), np.int64)
+            for rule in radii:
+                out[f"{key}_{tr}_{rule}_deformed"] = np.zeros(len(pick), np.int64)
+    for k, i in enumerate(pick):
+        s = frames[i]
+        x = np.asarray(positions[s], dtype=np.float64)
+        x_pred = 2.0 * x - np.asarray(positions[s - 1], dtype=np.float64)
+        x_next = np.asarray(positions[s + 1], dtype=np.float64)
+        x_def = np.asarray(deformed[i], dtype=np.float64)
+        same = np.array_equal(x_def, x)
+        for tr in truncations:
+            kw = dict(edges=edges, faces=faces, dhat=dhat, thickness=thickness, truncation=tr, client=client)
+            base = replay_step(x, x, x_pred, x_next, radius="step", **kw)
+            out[f"passes_{tr}_baseline"][k], out[f"iterations_{tr}_baseline"][k] = base["passes"], base["iterations"]
+            for rule in radii:
+                r = base if same else replay_step(x_def, x, x_pred, x_next, radius=rule, **kw)
+                out[f"passes_{tr}_{rule}_deformed"][k] = r["passes"]
+                out[f"iterations_{tr}_{rule}_deformed"][k] = r["iterations"]
+        if progress is not None:
+            progress()
+    return out
+
+
+def summarize_counts(counts) -> dict:
+    """Totals over the replayed steps: ``{tr: {"baseline": n, rule: n, rule + "_change": fraction}}``."""
+    out = {"n_steps": int(len(counts["frame"]))}
+    for key in counts:
+        if key.startswith("passes_") and key.endswith("_baseline"):
+            tr = key[len("passes_"):-len("_baseline")]
+            base = int(counts[key].sum())
+            row = {"baseline": base, "iterations_baseline": int(counts[f"iterations_{tr}_baseline"].sum())}
+            for rule in RADIUS_RULES:
+                k = f"passes_{tr}_{rule}_deformed"
+                if k in counts:
+                    row[rule] = int(counts[k].sum())
+                    row[f"{rule}_change"] = (row[rule] - base) / base if base else float("nan")
+                    row[f"iterations_{rule}"] = int(counts[f"iterations_{tr}_{rule}_deformed"].sum())
+            out[tr] = row
+    return out

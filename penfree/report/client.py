@@ -1,0 +1,83 @@
+"""The real-client section of ``penfree report`` (``--client ipctk``).
+
+report.json gains, per file, ``client``: ``options`` (``client``, ``truncations``,
+``radius_rules``, ``dhat``, ``every``, ``thickness``), ``summary`` (per truncation:
+``baseline``, ``step``/``own`` passes summed over the replayed steps, their
+``..._change`` fractions and the iteration totals; `client_stats.summarize_counts`)
+and ``steps`` (the per-step arrays of `client_stats.client_counts` as lists).
+report.md gains a table per file and ``<stem>_client_passes.png``: passes per step,
+baseline against deformed, per truncation and radius rule, with the steps where
+``auto`` moved anything marked.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.trust.client_stats import client_counts, expand, resolve_dhat, summarize_counts
+from ..core.trust.client import RADIUS_RULES, TRUNCATIONS
+
+
+def client_section(result, *, client="ipctk", truncation="both", radius="both", dhat=None, every=1,
+                   progress=None) -> dict:
+    """Replay every `every`-th step of a deform result through the client (module doc)."""
+    seq, steps = result.sequence, result.steps
+    truncations = expand(truncation, TRUNCATIONS)
+    radii = expand(radius, RADIUS_RULES)
+    dhat = resolve_dhat(dhat, getattr(seq, "contact_radius", 0.0), seq.thickness)
+    counts = client_counts(seq.positions, steps["deformed"], steps["frame"], edges=seq.edges, faces=seq.faces,
+                           dhat=dhat, thickness=seq.thickness, truncations=truncations, radii=radii, every=every,
+                           client=client, models=steps.get("model"), progress=progress)
+    return {
+        "options": {"client": client, "truncations": list(truncations), "radius_rules": list(radii),
+                    "dhat": dhat, "every": int(every), "thickness": float(seq.thickness)},
+        "summary": summarize_counts(counts),
+        "steps": {k: np.asarray(v).tolist() for k, v in counts.items()},
+    }
+
+
+def client_markdown(section) -> str:
+    """The Markdown table of a `client_section`."""
+    o, sm = section["options"], section["summary"]
+    rules = o["radius_rules"]
+    head = ["truncation", "baseline passes"] + [f"x_def, rule {r}" for r in rules] + ["baseline iterations"] + \
+        [f"iterations, rule {r}" for r in rules]
+    rows = []
+    for tr in o["truncations"]:
+        row = sm[tr]
+        rows.append([tr, str(row["baseline"])]
+                    + [f"{row[r]} ({100 * row[f'{r}_change']:+.0f}%)" if row["baseline"] else str(row[r])
+                       for r in rules]
+                    + [str(row["iterations_baseline"])] + [str(row[f"iterations_{r}"]) for r in rules])
+    lines = ["### Real-client CD passes\n",
+             f"`{o['client']}` (`ipctk.ogc.TrustRegion` replay), dhat {o['dhat']:.4g}, min distance "
+             f"{o['thickness']:.4g}, every {o['every']} step(s), {sm['n_steps']} steps, summed. Rule `step`: the "
+             "simulator keeps the radius computed at x (the integration contract); rule `own`: ipctk's warm start "
+             "recomputes it from x_def.\n",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def client_plot(section, title):
+    """``fill(ax)`` drawing passes per step, baseline against deformed (plots.write_plots)."""
+    st, o = section["steps"], section["options"]
+
+    def fill(ax):
+        frames = np.asarray(st["frame"])
+        styles = {"isotropic": "-", "planar": "--"}
+        for tr in o["truncations"]:
+            ax.step(frames, st[f"passes_{tr}_baseline"], where="mid", color="0.4", ls=styles[tr], lw=4, alpha=0.4,
+                    label=f"baseline, {tr}")
+            for rule, color in (("step", "tab:blue"), ("own", "tab:red")):
+                if rule in o["radius_rules"]:
+                    ax.step(frames, st[f"passes_{tr}_{rule}_deformed"], where="mid", color=color, ls=styles[tr],
+                            label=f"x_def rule {rule}, {tr}")
+        if "model" in st:
+            moved = frames[np.asarray(st["model"]) != "none"]
+            ax.plot(moved, np.zeros(len(moved)), "|", color="k", ms=10, label="auto moved")
+        ax.set(xlabel="frame", ylabel="client CD passes", title=f"{title}: real-client CD passes")
+        ax.set_ylim(bottom=-0.3)
+        ax.legend(fontsize="small")
+
+    return fill

@@ -1,0 +1,83 @@
+"""``deform --client-model`` and ``report --client ipctk`` (issue 12), in-process."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+import h5py
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from penfree.cli import main
+from penfree.sequence import Sequence
+
+
+@pytest.fixture()
+def two_rods(tmp_path):
+    """Two 3-vertex rods 20 apart translating fast (5 per frame), thickness 0.1."""
+    from penfree.formats import write_sequence
+
+    s = np.linspace(0.0, 1.0, 3)
+    base = np.concatenate([np.c_[s, 0 * s, 0 * s], np.c_[s, 0 * s + 20.0, 0 * s]])
+    frames = np.stack([base + [5.0 * t, 0, 0] for t in range(6)])
+    seq = Sequence(positions=frames, edges=np.array([[0, 1], [1, 2], [3, 4], [4, 5]]))
+    seq.thickness = 0.1
+    seq = seq.validate()
+    path = tmp_path / "rods.h5"
+    write_sequence(str(path), seq)
+    return path
+
+
+def test_deform_client_model_moves_the_fast_rods(two_rods, tmp_path):
+    out = tmp_path / "d.h5"
+    r = CliRunner().invoke(main, ["deform", str(two_rods), "-o", str(out), "--client-model", "isotropic",
+                                  "--dhat", "1.0", "--json"])
+    assert r.exit_code == 0, r.output
+    with h5py.File(out, "r") as f:
+        models = [m.decode() if isinstance(m, bytes) else str(m) for m in f["steps/model"][()]]
+        deformed, frames, pos = f["steps/deformed"][()], f["steps/frame"][()], f["positions"][()]
+    assert all(m != "none" for m in models)
+    np.testing.assert_allclose(deformed, 2 * pos[frames] - pos[frames - 1], atol=1e-9)
+
+
+def test_deform_client_model_needs_auto(two_rods, tmp_path):
+    out = tmp_path / "d.h5"
+    r = CliRunner().invoke(main, ["deform", str(two_rods), "-o", str(out), "--model", "affine",
+                                  "--client-model", "planar"])
+    assert r.exit_code == 2 and "--client-model needs --model auto" in r.output
+    assert not out.exists()
+
+
+def test_report_client_without_ipctk_exits_2(two_rods, tmp_path, monkeypatch):
+    d = tmp_path / "d.h5"
+    assert CliRunner().invoke(main, ["deform", str(two_rods), "-o", str(d)]).exit_code == 0
+    monkeypatch.setitem(sys.modules, "ipctk", None)  # import ipctk -> ImportError
+    out = tmp_path / "rep"
+    r = CliRunner().invoke(main, ["report", str(d), "-o", str(out), "--client", "ipctk", "--no-ladder"])
+    assert r.exit_code == 2
+    assert "pip install 'penfree[ogc]'" in r.output
+    assert not out.exists()
+
+
+def test_report_client_ipctk_table_and_plot(two_rods, tmp_path):
+    pytest.importorskip("ipctk", reason="ipctk (penfree[ogc]) not installed; make test installs it")
+    d = tmp_path / "d.h5"
+    assert CliRunner().invoke(main, ["deform", str(two_rods), "-o", str(d), "--client-model", "isotropic",
+                                     "--dhat", "1.0"]).exit_code == 0
+    out = tmp_path / "rep"
+    r = CliRunner().invoke(main, ["report", str(d), "-o", str(out), "--client", "ipctk", "--dhat", "1.0",
+                                  "--no-ladder", "--every", "2"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads((out / "report.json").read_text())
+    cl = doc["files"][0]["client"]
+    assert cl["options"]["truncations"] == ["isotropic", "planar"] and cl["options"]["every"] == 2
+    assert cl["steps"]["frame"] == [1, 3]  # steps with a next frame, every 2nd
+    iso = cl["summary"]["isotropic"]
+    # From x: 3 passes a step (tests/core/test_client.py's hand count); from x_def = x_pred: 1.
+    assert iso["baseline"] == 6 and iso["step"] == 2
+    assert "Real-client CD passes" in (out / "report.md").read_text()
+    if doc["plots"]["status"] == "written":
+        assert os.path.exists(out / "d_client_passes.png")

@@ -1,0 +1,115 @@
+"""`auto` by the client's predicted CD passes, and `penfree.predeform`."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import penfree
+from penfree import Obstacle
+from penfree.core.trust.client import replay_step
+from penfree.core.pipeline.client_select import ClientModel, held_target
+from penfree.errors import InputError
+
+#: Two parallel unit segments 20 apart, moving by V per step (nothing near: the
+#: radius cap 0.45 R alone limits every vertex).
+X = np.array([[0.0, 0, 0], [1, 0, 0], [0, 20, 0], [1, 20, 0]])
+EDGES = np.array([[0, 1], [2, 3]])
+V = np.array([5.0, 0, 0])
+
+
+def _select(x_prev, x, truncation="isotropic", dhat=1.0):
+    """`auto` with a client model on one step (`predeform` runs deform's step)."""
+    r = penfree.predeform(x_prev, x, edges=EDGES, contact_radius=dhat, truncation=truncation)
+    return r, r.table
+
+
+@pytest.mark.parametrize("truncation", ["isotropic", "planar"])
+def test_static_scene_does_nothing(truncation):
+    res, table = _select(X, X, truncation)
+    assert res.model == "none"
+    np.testing.assert_array_equal(res.x_def, X)
+    assert table[0]["name"] == "none" and table[0]["chosen"]
+
+
+def test_fast_coherent_translation_is_taken():
+    """Baseline: 3 passes to x_pred (test_client's hand count); translating to x_pred: 1."""
+    res, table = _select(X - V, X)
+    assert res.model != "none"
+    np.testing.assert_allclose(res.x_def, X + V, atol=1e-12)
+    assert penfree.certify(res.A)
+    rows = {r["name"]: r for r in table}
+    assert rows["none"]["client_passes"] == 3
+    assert min(r["client_passes"] for r in table if r.get("client_passes") is not None) == 1
+    # the prediction is the real count of the own client toward x_pred
+    assert replay_step(res.x_def, X, X + V, X + V, edges=EDGES, dhat=1.0, client="own")["passes"] == 1
+
+
+def test_planar_tie_goes_to_doing_nothing():
+    """Planar with nothing near: one pass either way (radius ball 5 >= |V|), so none."""
+    res, table = _select(X - V, X, "planar")
+    assert res.model == "none"
+    assert {r["client_passes"] for r in table if r.get("client_passes") is not None} == {1}
+
+
+def test_held_target():
+    x = np.zeros((3, 3))
+    x_pred = np.ones((3, 3))
+    y = held_target(x, x_pred, np.array([0.1, 0.5, 0.1]), dhat=0.1, r_q=0.1)
+    # vertex 0: 0.1 <= 1.5 dhat but at the cap r_q (nothing within the query): free
+    np.testing.assert_array_equal(y, x_pred)
+    y = held_target(x, x_pred, np.array([0.05, 0.5, 0.09]), dhat=0.1, r_q=1.0)
+    np.testing.assert_array_equal(y, [[0, 0, 0], [1, 1, 1], [0, 0, 0]])
+
+
+def test_client_model_validation():
+    with pytest.raises(InputError, match="truncation"):
+        ClientModel(truncation="cubic", dhat=1.0)
+    with pytest.raises(InputError, match="dhat"):
+        ClientModel(truncation="planar", dhat=0.0)
+
+
+class TestPredeform:
+    def test_moves_and_returns_the_radius_to_keep(self):
+        r = penfree.predeform(X - V, X, edges=EDGES, contact_radius=1.0)
+        np.testing.assert_allclose(r.x_def, X + V, atol=1e-12)
+        assert r.query_radius == 5.0  # max(2 dhat, max |x_pred - x|), at x
+        assert penfree.certify(r.A)
+        np.testing.assert_allclose(X @ r.A.T + r.b, r.x_def, atol=1e-12)
+
+    def test_static_does_nothing(self):
+        r = penfree.predeform(X, X, edges=EDGES, contact_radius=1.0)
+        assert r.model == "none" and r.query_radius == 2.0
+        np.testing.assert_array_equal(r.x_def, X)
+
+    @pytest.mark.parametrize("wall_x, moved", [(3.0, False), (100.0, True)], ids=["wall-ahead", "wall-far"])
+    def test_mesh_obstacle(self, wall_x, moved):
+        """A triangle wall in the plane x = wall_x across both segments' way (+5 in x from x <= 1):
+        the applied path never reaches it (checked by verify's CCD), the full move only when far."""
+        P = np.array([[wall_x, -10.0, -10.0], [wall_x, 60.0, -10.0], [wall_x, -10.0, 40.0]])
+        F = np.array([[0, 1, 2]])
+        r = penfree.predeform(X - V, X, edges=EDGES, contact_radius=1.0,
+                              obstacles=[Obstacle("wall", positions=P, faces=F)])
+        assert penfree.verify_step(X, r.x_def, edges=EDGES, obstacles=[(P, P, F, None)]).ok
+        assert np.allclose(r.x_def, X + V, atol=1e-12) == moved
+
+    @pytest.mark.parametrize("offset, moved", [(-3.0, False), (-100.0, True)], ids=["wall-ahead", "wall-far"])
+    def test_half_space(self, offset, moved):
+        """Normal -e_x: the free side is x < -offset; the segments move +5 in x from x <= 1."""
+        ob = Obstacle("wall", normal=np.array([-1.0, 0, 0]), offset=offset)
+        r = penfree.predeform(X - V, X, edges=EDGES, contact_radius=1.0, obstacles=[ob])
+        assert np.allclose(r.x_def, X + V, atol=1e-12) == moved
+        assert np.all(r.x_def @ ob.normal > ob.offset)
+
+    def test_bounds_replace_the_query(self):
+        """The simulator's own bounds (nothing near: the cap) give the same choice."""
+        r_q = 1.0 + 5.0
+        b = np.full(len(X), 0.45 * r_q)
+        r = penfree.predeform(X - V, X, edges=EDGES, contact_radius=1.0, bounds=b)
+        np.testing.assert_allclose(r.x_def, X + V, atol=1e-12)
+
+    def test_needs_topology_and_offset(self):
+        with pytest.raises(InputError, match="edges or faces"):
+            penfree.predeform(X, X)
+        with pytest.raises(InputError, match="contact_radius"):
+            penfree.predeform(X, X, edges=EDGES)

@@ -1,0 +1,113 @@
+"""Real-client replay: hand-built cases with known pass counts, own client against ipctk."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import pytest
+
+from penfree.core.trust.client import inflation_radius, replay_step
+from penfree.core.trust.client_stats import client_counts, resolve_dhat, summarize_counts
+from penfree.errors import InputError
+
+HAVE_IPCTK = importlib.util.find_spec("ipctk") is not None
+CLIENTS = ["own", pytest.param("ipctk", marks=pytest.mark.skipif(
+    not HAVE_IPCTK, reason="ipctk (penfree[ogc]) not installed; make test installs it"))]
+
+#: Two parallel unit segments 20 apart (nothing within any radius used below).
+X = np.array([[0.0, 0, 0], [1, 0, 0], [0, 20, 0], [1, 20, 0]])
+EDGES = [[0, 1], [2, 3]]
+V = np.array([5.0, 0, 0])
+
+
+@pytest.mark.parametrize("client", CLIENTS)
+def test_known_counts_isotropic_step(client):
+    """x_pred = x_next = x + 5: radius R = 5, radii 0.45 R = 2.25 (nothing near).
+
+    Warm start: 5 > 2.25, every vertex truncated -> pass 2 at x + 2.25; iteration 1:
+    2.75 > 2.25 truncated -> pass 3 at x + 4.5; iteration 2: 0.5 arrives, no update.
+    """
+    r = replay_step(X, X, X + V, X + V, edges=EDGES, dhat=1.0, truncation="isotropic", radius="step",
+                    client=client)
+    assert (r["passes"], r["iterations"], r["converged"]) == (3, 2, True)
+
+
+@pytest.mark.parametrize("client", CLIENTS)
+def test_known_counts_planar_no_candidates(client):
+    """Planar with no candidate pair: only the inflation-radius ball (R = 5) caps, so
+    the warm start reaches x_pred in one pass."""
+    r = replay_step(X, X, X + V, X + V, edges=EDGES, dhat=1.0, truncation="planar", radius="step",
+                    client=client)
+    assert (r["passes"], r["iterations"], r["converged"]) == (1, 0, True)
+
+
+@pytest.mark.parametrize("client", CLIENTS)
+def test_radius_rules_from_a_deformed_start(client):
+    """From x_def = x + 4: rule step keeps R = 5 (radii 2.25): one pass. Rule own
+    recomputes R = max(2 dhat, 1) = 2 (radii 0.9): the warm start truncates every
+    vertex (pass 2), then the last 0.1 arrives."""
+    x_def = X + np.array([4.0, 0, 0])
+    step = replay_step(x_def, X, X + V, X + V, edges=EDGES, dhat=1.0, radius="step", client=client)
+    own = replay_step(x_def, X, X + V, X + V, edges=EDGES, dhat=1.0, radius="own", client=client)
+    assert (step["passes"], step["iterations"]) == (1, 0)
+    assert (own["passes"], own["iterations"], own["converged"]) == (2, 1, True)
+
+
+def test_inflation_radius_floor():
+    assert inflation_radius(X, X + 0.1, 1.0) == 2.0
+    assert inflation_radius(X, X + V, 1.0) == 5.0
+
+
+@pytest.mark.skipif(not HAVE_IPCTK, reason="ipctk (penfree[ogc]) not installed; make test installs it")
+@pytest.mark.parametrize("truncation", ["isotropic", "planar"])
+def test_own_client_matches_ipctk_on_a_sample(truncation, sample_sequence):
+    """penfree's own client counts the same passes and iterations as ipctk."""
+    seq = sample_sequence
+    P = seq.positions
+    dhat = resolve_dhat(None, seq.contact_radius, seq.thickness)
+    for s in (3, 9):
+        x = P[s].astype(float)
+        x_pred = 2 * x - P[s - 1]
+        kw = dict(edges=seq.edges, faces=seq.faces, dhat=dhat, thickness=seq.thickness, truncation=truncation)
+        for start in (x, 0.5 * (x + x_pred)):
+            for rule in ("step", "own"):
+                a = replay_step(start, x, x_pred, P[s + 1], radius=rule, client="own", **kw)
+                b = replay_step(start, x, x_pred, P[s + 1], radius=rule, client="ipctk", **kw)
+                assert (a["passes"], a["iterations"]) == (b["passes"], b["iterations"])
+
+
+@pytest.fixture(scope="module")
+def sample_sequence():
+    from pathlib import Path
+
+    from penfree import read_sequence
+
+    seq = read_sequence(Path(__file__).resolve().parents[3] / "samples" / "twisted_cables.h5")
+    seq.positions = np.asarray(seq.positions[:12], dtype=np.float64)
+    return seq
+
+
+def test_client_counts_identity_equals_baseline(sample_sequence):
+    """x_def = x: the deformed counts are the baseline's, under both rules."""
+    seq = sample_sequence
+    frames = np.arange(1, 6)
+    counts = client_counts(seq.positions, seq.positions[frames], frames, edges=seq.edges, dhat=seq.thickness,
+                           thickness=seq.thickness, client="own", every=2)
+    np.testing.assert_array_equal(counts["frame"], [1, 3, 5])
+    for tr in ("isotropic", "planar"):
+        for rule in ("step", "own"):
+            np.testing.assert_array_equal(counts[f"passes_{tr}_{rule}_deformed"], counts[f"passes_{tr}_baseline"])
+    sm = summarize_counts(counts)
+    assert sm["isotropic"]["step_change"] == 0.0 and sm["n_steps"] == 3
+
+
+def test_bad_arguments():
+    with pytest.raises(InputError, match="dhat"):
+        replay_step(X, X, X, X, edges=EDGES, dhat=0.0, client="own")
+    with pytest.raises(InputError, match="truncation"):
+        replay_step(X, X, X, X, edges=EDGES, dhat=1.0, truncation="cubic", client="own")
+    with pytest.raises(InputError, match="radius rule"):
+        replay_step(X, X, X, X, edges=EDGES, dhat=1.0, radius="mine", client="own")
+    with pytest.raises(InputError, match="dhat"):
+        resolve_dhat(None, 0.0, 0.0)

@@ -1,0 +1,129 @@
+"""Planar ("Divide and Truncate") and isotropic filters against ipctk.ogc.TrustRegion."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from penfree.core.trust.planar import (
+    KIND_EDGE_EDGE, KIND_VERTEX_FACE, candidate_stencils, isotropic_filter, planar_filter, stencil_coefficients,
+)
+from penfree.core.trust.bounds import scene_arrays, trust_region_bounds
+
+ipctk = pytest.importorskip("ipctk", reason="ipctk (penfree[ogc]) is the oracle of these tests; make test installs it")
+
+
+def _grid(rng, n=9, layers=2, gap=0.06):
+    u, w = np.meshgrid(np.linspace(0, 0.4, n), np.linspace(0, 0.4, n), indexing="ij")
+    V, F = [], []
+    for k in range(layers):
+        V.append(np.column_stack([u.ravel(), w.ravel(), np.full(n * n, k * gap)]))
+        q = np.arange(n * n).reshape(n, n)[:-1, :-1].ravel() + k * n * n
+        F += [np.column_stack([q, q + n, q + 1]), np.column_stack([q + 1, q + n, q + n + 1])]
+    V = np.concatenate(V) + rng.normal(0, 0.01, (layers * n * n, 3))
+    return V, None, np.concatenate(F)
+
+
+def _rods(rng, n_rods=8, per=12):
+    t = np.linspace(0, 0.5, per)
+    V = np.concatenate([np.column_stack([t, np.full(per, 0.05 * k), 0.02 * np.sin(9 * t + k)])
+                        for k in range(n_rods)]) + rng.normal(0, 0.01, (n_rods * per, 3))
+    E = np.concatenate([np.column_stack([np.arange(per - 1), np.arange(1, per)]) + k * per for k in range(n_rods)])
+    return V, E, None
+
+
+def _client(V, E, F, R, thickness=0.0):
+    _, E_, F_ = scene_arrays(V, E, F)
+    mesh = ipctk.CollisionMesh(np.asfortranarray(V), np.asfortranarray(E_.astype(np.int32)),
+                               np.asfortranarray(F_.astype(np.int32)))
+    tr = ipctk.ogc.TrustRegion(0.01)
+    tr.trust_region_inflation_radius = R
+    tr.update(mesh, np.asfortranarray(V), ipctk.NormalCollisions(), thickness)
+    return mesh, tr, E_, F_
+
+
+def _ipctk_stencils(mesh, tr):
+    st = [c.vertex_ids(mesh.edges, mesh.faces) for c in tr.candidates.ee_candidates]
+    kd = [KIND_EDGE_EDGE] * len(st)
+    st += [c.vertex_ids(mesh.edges, mesh.faces) for c in tr.candidates.fv_candidates]
+    kd += [KIND_VERTEX_FACE] * (len(st) - len(kd))
+    return np.array(st, dtype=np.int64).reshape(-1, 4), np.array(kd, dtype=np.int64)
+
+
+SCENES = {"cloth-layers": _grid, "rods": _rods}
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("scene", sorted(SCENES))
+@pytest.mark.parametrize("moved", [False, True], ids=["at-centres", "moved-since-update"])
+def test_planar_matches_ipctk(scene, seed, moved):
+    """Same truncated displacements as planar_filter_step, to 1e-9 relative."""
+    rng = np.random.default_rng(seed)
+    V, E, F = SCENES[scene](rng)
+    R = 0.08
+    mesh, tr, E_, F_ = _client(V, E, F, R)
+    x = V + (rng.normal(0, 0.005, V.shape) if moved else 0.0)
+    dx = rng.normal(0, 0.03, V.shape)
+    ref = np.array(dx, order="F")
+    tr.planar_filter_step(mesh, np.asfortranarray(x), ref)
+    scale = np.abs(ref).max()
+    # with ipctk's own candidates
+    st, kd = _ipctk_stencils(mesh, tr)
+    out, n_trunc = planar_filter(x, dx, V, R, st, kd)
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-9 * scale)
+    assert n_trunc == int(np.count_nonzero(np.any(ref != dx, axis=1)))
+    # with penfree's own broad phase (a superset within the same radius)
+    st2, kd2 = candidate_stencils(V, E_, F_, R)
+    out2, _ = planar_filter(x, dx, V, R, st2, kd2)
+    np.testing.assert_allclose(out2, ref, rtol=0, atol=1e-9 * scale)
+    assert n_trunc > 0  # the scenes are tight enough for the planes to matter
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("scene", sorted(SCENES))
+def test_isotropic_matches_ipctk(scene, seed):
+    rng = np.random.default_rng(seed)
+    V, E, F = SCENES[scene](rng)
+    R, thickness = 0.08, 0.002
+    mesh, tr, E_, F_ = _client(V, E, F, R, thickness)
+    radii = 0.45 * trust_region_bounds(V, edges=E_, faces=F_, thickness=thickness, query_radius=R) / 0.45
+    np.testing.assert_allclose(radii, tr.trust_region_radii, rtol=1e-12, atol=1e-15)
+    dx = rng.normal(0, 0.03, V.shape)
+    ref = np.array(dx, order="F")
+    tr.filter_step(mesh, np.asfortranarray(V), ref)
+    out, _ = isotropic_filter(V, dx, V, radii)
+    np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12)
+
+
+def test_stencil_coefficients_match_ipctk():
+    """Closest-point coefficients of both stencil kinds against ipctk's own."""
+    rng = np.random.default_rng(5)
+    V, E, F = _grid(rng)
+    mesh, tr, _, _ = _client(V, E, F, 0.08)
+    for cands, kind in ((tr.candidates.ee_candidates, KIND_EDGE_EDGE),
+                        (tr.candidates.fv_candidates, KIND_VERTEX_FACE)):
+        for c in list(cands)[:200]:
+            P = V[c.vertex_ids(mesh.edges, mesh.faces)]
+            coef = np.zeros(4)
+            stencil_coefficients(P, kind, coef)
+            dv, ref = c.compute_distance_vector_with_coefficients(P.ravel())
+            np.testing.assert_allclose(coef @ P, dv, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(coef, ref, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("case", ["parallel-approach", "tangential-slide"])
+def test_planar_named_cases(case):
+    """Two parallel segments 0.1 apart: approaching stops at 0.9 x the way to the
+    mid-plane; sliding along the plane is not truncated at all."""
+    x = np.array([[0.0, 0, 0], [1, 0, 0], [0, 0.1, 0], [1, 0.1, 0]])
+    st, kd = np.array([[0, 1, 2, 3]]), np.array([KIND_EDGE_EDGE])
+    if case == "parallel-approach":
+        dx = np.array([[0, 0.1, 0], [0, 0.1, 0], [0, -0.1, 0], [0, -0.1, 0]])
+        out, n = planar_filter(x, dx, x, 1.0, st, kd)
+        np.testing.assert_allclose(out[:, 1], 0.9 * np.array([0.05, 0.05, -0.05, -0.05]), atol=1e-15)
+        assert n == 4
+    else:
+        dx = np.array([[0.3, 0, 0.2]] * 4)
+        out, n = planar_filter(x, dx, x, 1.0, st, kd)
+        np.testing.assert_array_equal(out, dx)
+        assert n == 0
