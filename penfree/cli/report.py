@@ -63,8 +63,9 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
       penfree report deformed.h5 -o new/ --baseline old/report.json --max-regression 5
     """
     from ..report.build import (
-        check_report_dir, load_report_json, make_file_report, open_result, run_checks, select_steps, stored_stats, write_report,
+        check_report_dir, load_report_json, make_file_report, open_result, select_steps, stored_stats, write_report,
     )
+    from ..report.checks import run_checks
 
     if (baseline_path is None) != (max_regression is None):
         raise InputError("--baseline and --max-regression go together; give both or neither")

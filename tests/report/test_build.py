@@ -1,4 +1,4 @@
-"""Report writer: JSON round trip with stable keys, Markdown, plots, CI checks."""
+"""Report building and writing: statistics read or computed, JSON round trip with stable keys, Markdown, plots."""
 
 import json
 import math
@@ -13,11 +13,9 @@ from penfree.core.trust.stats import compute_stats, stats_keys
 from penfree.errors import InputError, OutputExistsError
 from penfree.report.build import (
     REPORT_SCHEMA,
-    certificate_summary,
     load_report_json,
     make_file_report,
     open_result,
-    run_checks,
     select_steps,
     stored_stats,
     worst_steps,
@@ -141,15 +139,6 @@ def test_worst_steps_order():
     assert rows[0]["k_1pct_gain"] == 1.0 and rows[0]["target"] == "next"
 
 
-def test_certificate_summary():
-    steps = {"frame": np.array([1, 2, 3]), "certificate_margin": np.array([0.3, np.nan, 0.05]),
-             "margin_required": np.array([0.1, 0.1, 0.1]), "model": np.array(["affine"] * 3),
-             "projection": np.array(["none", "sym", "sym"])}
-    c = certificate_summary(steps)
-    assert (c["all_certified"], c["n_uncertified"], c["uncertified_frames"]) == (False, 2, [2, 3])
-    assert c["min_margin"] == 0.05 and c["projections"] == {"none": 1, "sym": 2}
-
-
 # ---------------------------------------------------------------- write_report
 
 
@@ -246,48 +235,3 @@ def test_plots_skipped_without_matplotlib(tmp_path, monkeypatch):
     assert not list(out.glob("*.png"))
     assert "Plots skipped" in (out / "report.md").read_text()
     assert _strict_json(out / "report.json")["plots"]["status"] == "skipped"
-
-
-# ---------------------------------------------------------------- checks
-
-
-def _rep(name="a.h5", speedup=1.2, gain=0.1, k=2.0, hit=0.8, n_uncert=0):
-    return {"name": name, "summary": {"hit_rate_gain_next": gain,
-                                      "deformed": {"k_1pct_next": k, "hit_rate_next": hit},
-                                      "projected": {"k_1pct": {"speedup": speedup}}},
-            "certificate": {"all_certified": n_uncert == 0, "n_uncertified": n_uncert,
-                            "uncertified_frames": list(range(n_uncert))}}
-
-
-@pytest.mark.parametrize(
-    "kw, rep_kw, passed",
-    [
-        pytest.param({"min_speedup": 1.1}, {}, [True], id="speedup-pass"),
-        pytest.param({"min_speedup": 1.3}, {}, [False], id="speedup-fail"),
-        pytest.param({"min_speedup": 1.0}, {"speedup": float("nan")}, [False], id="speedup-missing"),
-        pytest.param({"min_hit_rate_gain": 10.0}, {}, [True], id="gain-10-points-pass"),
-        pytest.param({"min_hit_rate_gain": 10.5}, {}, [False], id="gain-fail"),
-        pytest.param({"fail_if_uncertified": True}, {"n_uncert": 2}, [False], id="uncertified"),
-        pytest.param({"fail_if_uncertified": True}, {}, [True], id="certified"),
-    ],
-)
-def test_threshold_checks(kw, rep_kw, passed):
-    checks = run_checks([_rep(**rep_kw)], **kw)
-    assert [c["passed"] for c in checks] == passed
-
-
-def test_regression_checks():
-    base = {"files": [_rep(name="a.h5")]}
-    same = run_checks([_rep()], baseline=base, max_regression=0.0)
-    assert len(same) == 3 and all(c["passed"] for c in same)
-    # K_1pct 2 -> 2.1 is a 5 % regression; speedup 1.2 -> 1.17 is 2.5 %
-    worse = run_checks([_rep(k=2.1, speedup=1.17)], baseline=base, max_regression=3.0)
-    by = {c["name"]: c["passed"] for c in worse}
-    assert by == {"regression:deformed.k_1pct_next": False, "regression:projected.k_1pct.speedup": True,
-                  "regression:deformed.hit_rate_next": True}
-    better = run_checks([_rep(k=1.0, speedup=2.0, hit=0.99)], baseline=base, max_regression=0.0)
-    assert all(c["passed"] for c in better)
-    # a single file on each side is matched whatever its name; two are matched by name
-    assert all(c["passed"] for c in run_checks([_rep(name="b.h5")], baseline=base, max_regression=0.0))
-    two = run_checks([_rep(name="b.h5"), _rep(name="a.h5")], baseline=base, max_regression=0.0)
-    assert [c["passed"] for c in two if c["file"] == "b.h5"] == [False]

@@ -11,6 +11,9 @@ from ...constants import DEFAULT_CD_SHARE, DEFAULT_FRAME_MS
 from ...errors import InputError
 from .stats import STARTS, TARGETS
 
+#: The *projected* frame time of `projected_frame_time`, as written into every report.
+PROJECTED_FORMULA = "T' = T_frame ((1 - f) + f K_deformed / K_baseline) + t_fit, speedup = T_frame / T'"
+
 
 def projected_frame_time(k_method, k_baseline, fit_ms=0.0, *, cd_share=DEFAULT_CD_SHARE,
                          frame_ms=DEFAULT_FRAME_MS) -> tuple:
