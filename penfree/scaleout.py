@@ -272,7 +272,7 @@ def _unflatten(flat):
 
 def deform_task(task, out_path, options, with_stats, threads):
     """Worker: deform the steps of `task`, write the partial result, return its path."""
-    from .core.pipeline.deform import deform_sequence
+    from .core.pipeline.deform import deform_sequence, deform_stats
     from .formats import read_sequence
 
     _set_threads(threads)
@@ -284,14 +284,8 @@ def deform_task(task, out_path, options, with_stats, threads):
                           check_start=bool(options.get("check_start")) or with_stats)
     groups = dict(out.groups)
     if with_stats:
-        from .core.trust.stats import compute_stats
-
-        st = out.steps
-        groups["stats"] = compute_stats(positions=seq.positions, frames=st["frame"], deformed=st["deformed"],
-                                        edges=seq.edges, faces=seq.faces,
-                                        thickness=seq.thickness if options["thickness"] is None else options["thickness"],
-                                        contact_radius=seq.contact_radius if options.get("contact_radius") is None
-                                        else options["contact_radius"], obstacles=seq.obstacles)
+        groups["stats"] = deform_stats(seq, out.steps, thickness=options["thickness"],
+                                       contact_radius=options.get("contact_radius"))
     flat = _flatten("steps/", out.steps, {})
     _flatten("groups/", groups, flat)
     parts = _parts_dir(out_path)

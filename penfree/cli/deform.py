@@ -60,7 +60,7 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
     Each step s moves frame s toward the prediction 2 x^s - x^(s-1); the straight path
     to the deformed state is certified penetration-free (exact test) before it is written.
     """
-    from ..core.pipeline.deform import deform_sequence, summarize_steps
+    from ..core.pipeline.deform import deform_sequence, deform_stats, summarize_steps
     from ..formats import check_outputs, input_files, read_sequence
     from ..formats.result import write_result
     from ..scaleout import is_scaleout
@@ -109,10 +109,9 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
         )
     groups = dict(result.groups)
     if with_stats:
-        from ..core.trust.stats import compute_stats
-
         with Progress(len(result.steps["frame"]), "stats") as bar:
-            groups["stats"] = compute_stats_for(seq, result, thickness, compute_stats, bar, contact_radius)
+            groups["stats"] = deform_stats(seq, result.steps, thickness=thickness, contact_radius=contact_radius,
+                                           progress=bar)
     attrs = {
         "penfree_version": __version__,
         "input": os.path.basename(input_path),
@@ -129,18 +128,6 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
         echo_json(summary)
         return
     _print_summary(summary, seq)
-
-
-def compute_stats_for(seq, result, thickness, compute_stats, progress, contact_radius=None):
-    """Trust-region statistics of a fresh deform result (stats/... datasets)."""
-    steps = result.steps
-    return compute_stats(
-        positions=seq.positions, frames=steps["frame"], deformed=steps["deformed"],
-        edges=seq.edges, faces=seq.faces,
-        thickness=seq.thickness if thickness is None else thickness, progress=progress,
-        contact_radius=seq.contact_radius if contact_radius is None else contact_radius,
-        obstacles=seq.obstacles,
-    )
 
 
 def _read_weights(path, name, seq):

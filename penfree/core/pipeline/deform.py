@@ -19,7 +19,7 @@ import numpy as np
 from ...errors import CertificateError, InputError
 from ..fit.certificate import certify_map
 from ..verify.gate import StepGate, margin_rule
-from ..trust.stats import residual_summary
+from ..trust.stats import compute_stats, residual_summary
 from ..fit.step import fit_step
 from .strategy import make_strategy, step_input, with_shortened
 
@@ -191,6 +191,34 @@ def start_state_intersections(seq, frames) -> np.ndarray:
     if seq.kind == "points":
         return np.zeros(len(frames), dtype=np.int64)
     return np.array([start_intersections(seq.positions[s], seq.edges, seq.faces) for s in frames], dtype=np.int64)
+
+
+def deform_stats(seq, steps, *, thickness=None, contact_radius=None, progress=None) -> dict:
+    """Trust-region statistics of a fresh deform output (the ``stats/`` datasets).
+
+    Parameters
+    ----------
+    seq : Sequence
+        The deformed recording (positions, topology, obstacles).
+    steps : dict
+        `DeformOutput.steps` (``frame (S,) int64``, ``deformed (S, N, 3) float``).
+    thickness, contact_radius : float, optional
+        The values deform ran with; default the sequence's.
+    progress : callable, optional
+        Called once per step.
+
+    Returns
+    -------
+    dict
+        `penfree.core.trust.stats.compute_stats` output.
+    """
+    return compute_stats(
+        positions=seq.positions, frames=steps["frame"], deformed=steps["deformed"],
+        edges=seq.edges, faces=seq.faces,
+        thickness=seq.thickness if thickness is None else thickness, progress=progress,
+        contact_radius=seq.contact_radius if contact_radius is None else contact_radius,
+        obstacles=seq.obstacles,
+    )
 
 
 def _warm_up(seq, s, model, projection):

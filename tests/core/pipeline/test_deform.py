@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from penfree.core.fit.certificate import certify_map
-from penfree.core.pipeline.deform import deform_sequence, step_indices
+from penfree.core.pipeline.deform import deform_sequence, deform_stats, step_indices
+from penfree.core.trust.stats import compute_stats
 from penfree.core.verify.path import verify_step
 from penfree.errors import InputError
 from penfree.sequence import Sequence
@@ -53,3 +54,20 @@ def test_frames_select_steps():
     assert step_indices(5, (None, None)).tolist() == [1, 2, 3, 4]
     with pytest.raises(InputError, match="selects no step"):
         step_indices(5, (0, 1))
+
+
+def test_deform_stats_defaults_to_the_sequence_values():
+    seq = _moving_sheets(gap=1.0, thickness=0.05)
+    steps = deform_sequence(seq, model="affine").steps
+    calls = []
+    st = deform_stats(seq, steps, progress=lambda: calls.append(1))
+    oracle = compute_stats(positions=seq.positions, frames=steps["frame"], deformed=steps["deformed"],
+                           faces=seq.faces, thickness=0.05, contact_radius=seq.contact_radius)
+    assert set(st) == set(oracle) and len(calls) == len(steps["frame"])
+    for k in oracle:
+        np.testing.assert_array_equal(st[k], oracle[k])
+    wider = deform_stats(seq, steps, thickness=0.2, contact_radius=0.3)
+    oracle = compute_stats(positions=seq.positions, frames=steps["frame"], deformed=steps["deformed"],
+                           faces=seq.faces, thickness=0.2, contact_radius=0.3)
+    for k in oracle:
+        np.testing.assert_array_equal(wider[k], oracle[k])
