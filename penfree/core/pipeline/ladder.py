@@ -19,8 +19,9 @@ import time
 import numpy as np
 
 from ...constants import DEFAULT_GAMMA, DEFAULT_REPLAY_CAP
-from ..trust.stats import contact_distance, query_radius, ratio_stats, replay_passes, residual_summary
+from ..trust.stats import ratio_stats, replay_passes, residual_summary
 from ..trust.summary import finite_mean
+from .strategy import start_separations, step_target
 
 #: The ladder, cheapest first (SPEC section 4), then the automatic choice.
 LADDER_MODELS = ("translation", "rigid", "similarity", "affine", "auto")
@@ -118,103 +119,138 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
     spike, which is why the median is reported beside the mean. Cost: one bound computation per model and
     step with a next frame, plus one for the baseline.
     """
-    if fit_fn is None:
-        from ..fit.step import fit_step as fit_fn
     positions = np.asarray(positions)
     frames = np.asarray(frames, dtype=np.int64)
     T, S = positions.shape[0], frames.shape[0]
     margins = np.zeros(S) if margins is None else np.asarray(margins, dtype=np.float64)
     if bounds_fn is None:
-        from ..trust.bounds import trust_region_bounds
-
-        def bounds_fn(x, r_q):
-            return trust_region_bounds(x, edges=edges, faces=faces, thickness=thickness, gamma=gamma,
-                                       query_radius=r_q)
-
+        bounds_fn = _scene_bounds(edges, faces, thickness, gamma)
     names = ["baseline", *models, *(["x_pred"] if ceiling else [])]
-    if "per-component" in models:
-        from .components import component_labels, per_component_step
-
-        labels = component_labels(positions.shape[1], edges, faces, components)
-    select = "auto" in models and (edges is not None and len(edges) or faces is not None and len(faces))
-    if select:
-        from ..fit.auto import select_step
-        from ..trust.bounds import scene_arrays, per_vertex_separation
-
-        _, E_sel, F_sel = scene_arrays(positions[0], edges, faces)
+    fitter = _LadderFit(positions, models, edges=edges, faces=faces, thickness=thickness, weights=weights,
+                        projection=projection, gamma=gamma, fit_fn=fit_fn, components=components)
     per = {m: {f: np.full(S, np.nan) for f in LADDER_FIGURES} for m in names}
     used = {m: {} for m in names}
     if S:
-        for m in models:  # warm-up: keep JIT compilation out of the timings
-            for _ in range(LADDER_WARMUP_CALLS if m not in ("auto", "per-component") else 0):
-                fit_fn(positions[frames[0] - 1], positions[frames[0]], weights=weights, model=m,
-                       projection=projection, margin=0.0)
+        fitter.warm_up(frames[0])
     for i, s in enumerate(frames):
         x_prev, x = positions[s - 1], positions[s]
-        x64 = np.asarray(x, dtype=np.float64)
-        x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
+        x64, x_pred, r_q = step_target(x_prev, x, contact_radius, thickness)
         x_next = np.asarray(positions[s + 1], dtype=np.float64) if s + 1 < T else None
-        r_q = query_radius(x64, x_pred, contact_distance(contact_radius, thickness))
         states = {"baseline": (x64, 0.0, math.nan)}
-        margin = float(margins[i])
         for m in models:
-            model, mg = (m, margin) if margin < 1.0 else ("translation", 0.0)
-            if model == "per-component":
-                t0 = time.perf_counter()
-                r = per_component_step(x_prev, x, labels, edges=edges, faces=faces, thickness=thickness,
-                                       weights=weights, margin=mg, projection=projection)
-            elif select and model == "auto":
-                # The separations at x are the simulator's last detection: not fit time.
-                d_start = per_vertex_separation(x64, E_sel, F_sel, r_q)
-                t0 = time.perf_counter()
-                r, _ = select_step(x_prev, x, d_start, r_q=r_q, thickness=thickness, gamma=gamma,
-                                   weights=weights, margin=mg, projection=projection)
-            else:
-                t0 = time.perf_counter()
-                r = fit_fn(x_prev, x, weights=weights, model=model, projection=projection, margin=mg)
-            dt_ms = (time.perf_counter() - t0) * 1e3
-            name = f"{len(np.unique(r.group))} groups" if model == "per-component" else r.model
+            name, states[m] = fitter.fit(m, x_prev, x, x64, r_q, float(margins[i]))
             used[m][name] = used[m].get(name, 0) + 1
-            states[m] = (np.asarray(r.x_def, dtype=np.float64), dt_ms, float(r.certificate_margin))
         if ceiling:
             states["x_pred"] = (x_pred, math.nan, math.nan)
-        for m, (x_s, dt_ms, cm) in states.items():
-            row = per[m]
-            row["fit_ms"][i], row["certificate_margin"][i] = dt_ms, cm
-            row["residual_pred_rms"][i] = residual_summary(x_s, x_pred)[0]
-            if x_next is not None:
-                row["residual_next_rms"][i] = residual_summary(x_s, x_next)[0]
-                b = np.zeros(x_s.shape[0]) if r_q <= 0 else bounds_fn(x_s, r_q)
-                rs = ratio_stats(x_s, x_next, b)
-                row["k_1pct_next"][i], row["k_any_next"][i] = rs["k_1pct"], rs["k_any"]
-                row["hit_rate_next"][i] = rs["hit_rate"]
-                if replay:
-                    rp = replay_passes(x_s, x_next, lambda z: bounds_fn(z, r_q), cap=replay_cap, b0=b)
-                    row["replay_k_1pct_next"][i], row["replay_k_any_next"][i] = rp["k_1pct"], rp["k_any"]
+        for m, state in states.items():
+            _score(per[m], i, state, x_pred, x_next, r_q, bounds_fn, replay, replay_cap)
         if progress is not None:
             progress()
-    rows = []
-    for m in names:
-        p = per[m]
-        rows.append({
-            "model": m,
-            "fit_ms_mean": finite_mean(p["fit_ms"]),
-            "fit_ms_median": _median(p["fit_ms"]),
-            "residual_next_rms": _pooled_rms(p["residual_next_rms"]),
-            "residual_pred_rms": _pooled_rms(p["residual_pred_rms"]),
-            "k_1pct_next": finite_mean(p["k_1pct_next"]),
-            "k_any_next": finite_mean(p["k_any_next"]),
-            "k_1pct_next_sum": _sum(p["k_1pct_next"]),
-            "replay_k_1pct_next": finite_mean(p["replay_k_1pct_next"]),
-            "replay_k_any_next": finite_mean(p["replay_k_any_next"]),
-            "hit_rate_next": finite_mean(p["hit_rate_next"]),
-            "certificate_margin_mean": finite_mean(p["certificate_margin"]),
-            "certificate_margin_min": _min(p["certificate_margin"]),
-            "models_used": dict(sorted(used[m].items())),
-        })
     n_next = int(np.count_nonzero(frames + 1 < T))
-    return {"models": names, "n_steps": int(S), "n_steps_next": n_next, "rows": rows, "steps": per,
+    return {"models": names, "n_steps": int(S), "n_steps_next": n_next,
+            "rows": [_row(m, per[m], used[m]) for m in names], "steps": per,
             "auto_best_rate": _auto_best_rate(per, models)}
+
+
+def _scene_bounds(edges, faces, thickness, gamma):
+    """``bounds_fn(x, r_q)``: the trust-region bounds of this topology."""
+    from ..trust.bounds import trust_region_bounds
+
+    def bounds_fn(x, r_q):
+        return trust_region_bounds(x, edges=edges, faces=faces, thickness=thickness, gamma=gamma,
+                                   query_radius=r_q)
+
+    return bounds_fn
+
+
+class _LadderFit:
+    """Fits one step with one ladder model: `fit_fn`, `auto`'s selection, or per component."""
+
+    def __init__(self, positions, models, *, edges, faces, thickness, weights, projection, gamma, fit_fn,
+                 components):
+        if fit_fn is None:
+            from ..fit.step import fit_step as fit_fn
+        self.positions, self.models, self.fit_fn = positions, models, fit_fn
+        self.edges, self.faces, self.thickness = edges, faces, thickness
+        self.weights, self.projection, self.gamma = weights, projection, gamma
+        if "per-component" in models:
+            from .components import component_labels
+
+            self.labels = component_labels(positions.shape[1], edges, faces, components)
+        # auto's collision-aware selection needs topology; without it fit_fn's residual choice
+        self.select = "auto" in models and (edges is not None and len(edges) or faces is not None and len(faces))
+        if self.select:
+            from ..trust.bounds import scene_arrays
+
+            _, self.E, self.F = scene_arrays(positions[0], edges, faces)
+
+    def warm_up(self, s):
+        """Untimed calls so that JIT compilation stays out of the timings."""
+        for m in self.models:
+            for _ in range(LADDER_WARMUP_CALLS if m not in ("auto", "per-component") else 0):
+                self.fit_fn(self.positions[s - 1], self.positions[s], weights=self.weights, model=m,
+                            projection=self.projection, margin=0.0)
+
+    def fit(self, m, x_prev, x, x64, r_q, margin):
+        """``(name used, (x_def float64, fit ms, certificate margin))``; a margin >= 1 fits a translation."""
+        model, mg = (m, margin) if margin < 1.0 else ("translation", 0.0)
+        if model == "per-component":
+            from .components import per_component_step
+
+            t0 = time.perf_counter()
+            r = per_component_step(x_prev, x, self.labels, edges=self.edges, faces=self.faces,
+                                   thickness=self.thickness, weights=self.weights, margin=mg,
+                                   projection=self.projection)
+        elif self.select and model == "auto":
+            from ..fit.auto import select_step
+
+            d_start = start_separations(x64, self.E, self.F, r_q)  # the simulator's last detection: not fit time
+            t0 = time.perf_counter()
+            r, _ = select_step(x_prev, x, d_start, r_q=r_q, thickness=self.thickness, gamma=self.gamma,
+                               weights=self.weights, margin=mg, projection=self.projection)
+        else:
+            t0 = time.perf_counter()
+            r = self.fit_fn(x_prev, x, weights=self.weights, model=model, projection=self.projection, margin=mg)
+        dt_ms = (time.perf_counter() - t0) * 1e3
+        name = f"{len(np.unique(r.group))} groups" if model == "per-component" else r.model
+        return name, (np.asarray(r.x_def, dtype=np.float64), dt_ms, float(r.certificate_margin))
+
+
+def _score(row, i, state, x_pred, x_next, r_q, bounds_fn, replay, replay_cap):
+    """Step `i`'s figures of one model's state ``(x_s, fit ms, certificate margin)`` into `row`."""
+    x_s, dt_ms, cm = state
+    row["fit_ms"][i], row["certificate_margin"][i] = dt_ms, cm
+    row["residual_pred_rms"][i] = residual_summary(x_s, x_pred)[0]
+    if x_next is None:
+        return
+    row["residual_next_rms"][i] = residual_summary(x_s, x_next)[0]
+    b = np.zeros(x_s.shape[0]) if r_q <= 0 else bounds_fn(x_s, r_q)
+    rs = ratio_stats(x_s, x_next, b)
+    row["k_1pct_next"][i], row["k_any_next"][i] = rs["k_1pct"], rs["k_any"]
+    row["hit_rate_next"][i] = rs["hit_rate"]
+    if replay:
+        rp = replay_passes(x_s, x_next, lambda z: bounds_fn(z, r_q), cap=replay_cap, b0=b)
+        row["replay_k_1pct_next"][i], row["replay_k_any_next"][i] = rp["k_1pct"], rp["k_any"]
+
+
+def _row(m, p, used):
+    """The ladder row of model `m` from its per-step figures `p`."""
+    return {
+        "model": m,
+        "fit_ms_mean": finite_mean(p["fit_ms"]),
+        "fit_ms_median": _median(p["fit_ms"]),
+        "residual_next_rms": _pooled_rms(p["residual_next_rms"]),
+        "residual_pred_rms": _pooled_rms(p["residual_pred_rms"]),
+        "k_1pct_next": finite_mean(p["k_1pct_next"]),
+        "k_any_next": finite_mean(p["k_any_next"]),
+        "k_1pct_next_sum": _sum(p["k_1pct_next"]),
+        "replay_k_1pct_next": finite_mean(p["replay_k_1pct_next"]),
+        "replay_k_any_next": finite_mean(p["replay_k_any_next"]),
+        "hit_rate_next": finite_mean(p["hit_rate_next"]),
+        "certificate_margin_mean": finite_mean(p["certificate_margin"]),
+        "certificate_margin_min": _min(p["certificate_margin"]),
+        "models_used": dict(sorted(used.items())),
+    }
 
 
 def _auto_best_rate(per, models):

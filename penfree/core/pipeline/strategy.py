@@ -148,13 +148,9 @@ class Auto:
 
     def outcomes(self, step: StepInput):
         from ..fit.auto import candidate_result, candidate_table, rank, ranked_candidates
-        from ..trust.bounds import obstacle_separation, per_vertex_separation
 
-        d_start = (per_vertex_separation(step.x64, self.E, self.F, step.r_q) if self.d_start is None
-                   else np.minimum(self.d_start, step.r_q))
-        if self.obstacles:
-            d_start = np.minimum(d_start, obstacle_separation(step.x64, self.E, self.F, self.obstacles,
-                                                              step.r_q, step.s))
+        d_start = start_separations(step.x64, self.E, self.F, step.r_q, obstacles=self.obstacles, s=step.s,
+                                    known=self.d_start)
         t0 = time.perf_counter()
         x, x_prev, m, cands = ranked_candidates(step.x_prev, step.x, d_start, r_q=step.r_q,
                                                 thickness=self.thickness, weights=step.weights,
@@ -240,10 +236,30 @@ def make_strategy(model, seq, projection, thickness, n_steps, client_model=None)
 def step_input(seq, s, margin, gate, weights, contact_radius) -> StepInput:
     """Step `s` of `seq`; the query radius from the contact radius (at least the gate's thickness)."""
     x_prev, x = seq.positions[s - 1], seq.positions[s]
+    x64, x_pred, r_q = step_target(x_prev, x, contact_radius, gate.thickness)
+    return StepInput(int(s), x_prev, x, x64, x_pred, r_q, margin, gate, weights)
+
+
+def step_target(x_prev, x, contact_radius, thickness) -> tuple:
+    """``(x64, x_pred, r_q)`` of a step: `x` as float64, the prediction ``2 x - x_prev``
+    and the query radius from the contact radius (at least `thickness`)."""
     x64 = np.ascontiguousarray(x, dtype=np.float64)
     x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
-    r_q = query_radius(x64, x_pred, contact_distance(contact_radius, gate.thickness))
-    return StepInput(int(s), x_prev, x, x64, x_pred, r_q, margin, gate, weights)
+    return x64, x_pred, query_radius(x64, x_pred, contact_distance(contact_radius, thickness))
+
+
+def start_separations(x64, E, F, r_q, *, obstacles=(), s=None, known=None) -> np.ndarray:
+    """(N,) float64: per-vertex separations at `x64` capped at `r_q`, the ``d_start`` of `auto`.
+
+    `known` replaces the scene term when the caller already has it; obstacles (at frame
+    `s`) lower it. Computed before an `auto` fit is timed: the simulator's last detection.
+    """
+    from ..trust.bounds import obstacle_separation, per_vertex_separation
+
+    d_start = per_vertex_separation(x64, E, F, r_q) if known is None else np.minimum(known, r_q)
+    if obstacles:
+        d_start = np.minimum(d_start, obstacle_separation(x64, E, F, obstacles, r_q, s))
+    return d_start
 
 
 def selection_arrays(table_rows) -> dict:
