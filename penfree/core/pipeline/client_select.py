@@ -125,6 +125,11 @@ def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.
     none = passes(cands[0])
     cands[0].predicted["client_passes"] = none[0]
     cands[0].predicted["client_passes_half"] = none[1]
+    if none[0] > K.DEFAULT_CLIENT_MAX_ITER:
+        # Doing nothing already deadlocks the predicted client (a pile creeping toward
+        # its planes, one CD pass per iteration up to the cap): the predictions are
+        # no better than the cap there, so nothing is moved.
+        return 0
     best, best_p = 0, none
     seen = {}
     n = 0
