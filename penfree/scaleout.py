@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError
+from .formats.partials import merge_partials, parts_dir, write_partial
 
 #: Extensions a directory input expands to (the primary format).
 DIRECTORY_PATTERNS = ("*.h5", "*.hdf5")
@@ -245,31 +246,6 @@ def _set_threads(threads):
 # --- deform ------------------------------------------------------------------------
 
 
-def _parts_dir(out_path):
-    head, tail = os.path.split(out_path)
-    return os.path.join(head, f".{os.path.splitext(tail)[0]}.parts")
-
-
-def _flatten(prefix, d, out):
-    for k, v in d.items():
-        if isinstance(v, dict):
-            _flatten(f"{prefix}{k}/", v, out)
-        else:
-            out[f"{prefix}{k}"] = np.asarray(v)
-    return out
-
-
-def _unflatten(flat):
-    out = {}
-    for key, v in flat.items():
-        node = out
-        *heads, leaf = key.split("/")
-        for h in heads:
-            node = node.setdefault(h, {})
-        node[leaf] = v
-    return out
-
-
 def deform_task(task, out_path, options, with_stats, threads):
     """Worker: deform the steps of `task`, write the partial result, return its path."""
     from .core.pipeline.deform import deform_sequence, deform_stats
@@ -286,66 +262,7 @@ def deform_task(task, out_path, options, with_stats, threads):
     if with_stats:
         groups["stats"] = deform_stats(seq, out.steps, thickness=options["thickness"],
                                        contact_radius=options.get("contact_radius"))
-    flat = _flatten("steps/", out.steps, {})
-    _flatten("groups/", groups, flat)
-    parts = _parts_dir(out_path)
-    os.makedirs(parts, exist_ok=True)
-    name = os.path.join(parts, f"part-{int(out.steps['frame'][0]):010d}.npz")
-    tmp = name + f".tmp-{os.getpid()}.npz"
-    np.savez(tmp, **flat)
-    os.replace(tmp, name)
-    return name
-
-
-def merge_partials(parts) -> tuple:
-    """``(steps, groups)`` of a serial run from partial results in frame order."""
-    loaded = []
-    for p in parts:
-        with np.load(p, allow_pickle=False) as z:
-            loaded.append(_unflatten({k: z[k] for k in z.files}))
-    steps = {k: np.concatenate([d["steps"][k] for d in loaded]) for k in loaded[0]["steps"]}
-    groups = {}
-    for g in loaded[0].get("groups", {}):
-        tables = [d["groups"][g] for d in loaded]
-        groups[g] = _merge_selection(tables) if g == "selection" else _merge_group(tables)
-    return steps, groups
-
-
-def _merge_group(tables):
-    out = {}
-    for k, v in tables[0].items():
-        if k == "labels":  # per vertex, not per step
-            out[k] = v
-        else:
-            out[k] = np.concatenate([t[k] for t in tables])
-    return out
-
-
-def _merge_selection(tables):
-    # Columns in order of first appearance across the steps, as `selection_arrays` makes them.
-    names = []
-    for t in tables:
-        for n in t["candidates"].tolist():
-            if n not in names:
-                names.append(n)
-    out = {"candidates": np.array(names, dtype=str)}
-    chosen = []
-    for t in tables:
-        col = np.array([names.index(n) for n in t["candidates"].tolist()], dtype=np.int64)
-        ch = np.asarray(t["chosen"])
-        chosen.append(np.where(ch >= 0, col[np.maximum(ch, 0)] if col.size else -1, -1))
-    out["chosen"] = np.concatenate(chosen).astype(np.int64)
-    for k in tables[0]:
-        if not k.startswith("predicted_"):
-            continue
-        rows = []
-        for t in tables:
-            a = np.full((t[k].shape[0], len(names)), np.nan)
-            for j, n in enumerate(t["candidates"].tolist()):
-                a[:, names.index(n)] = t[k][:, j]
-            rows.append(a)
-        out[k] = np.concatenate(rows)
-    return out
+    return write_partial(out_path, out.steps, groups)
 
 
 def deform_many(specs, outdir, *, options, overwrite=False, with_stats=False, workers=None, scheduler=None,
@@ -389,7 +306,7 @@ def deform_many(specs, outdir, *, options, overwrite=False, with_stats=False, wo
             parts = run_tasks(c, _deform_entry, tasks, (out_of, options, with_stats, threads or 1), progress)
         except BaseException:
             for o in outs:
-                shutil.rmtree(_parts_dir(o), ignore_errors=True)
+                shutil.rmtree(parts_dir(o), ignore_errors=True)
             raise
     done = []
     try:
@@ -404,7 +321,7 @@ def deform_many(specs, outdir, *, options, overwrite=False, with_stats=False, wo
             done.append((path, out, steps))
     finally:  # partial results never outlive the run, merged or not
         for o in outs:
-            shutil.rmtree(_parts_dir(o), ignore_errors=True)
+            shutil.rmtree(parts_dir(o), ignore_errors=True)
     return done
 
 

@@ -125,7 +125,7 @@ def test_cycle_finder_finds_a_planted_cycle():
 def test_the_walk_sees_function_level_and_relative_imports():
     # penfree.core.pipeline.deform imports the verify stage inside start_state_intersections.
     targets = {t for t, _, _ in GRAPH["penfree.core.pipeline.deform"]}
-    assert "penfree.core.verify.path" in targets and "penfree.core.fit.step" in targets
+    assert "penfree.core.verify.pairs" in targets and "penfree.core.fit.step" in targets
 
 
 def test_no_import_cycle():

@@ -14,7 +14,8 @@ from click.testing import CliRunner
 from penfree import scaleout
 from penfree.cli import main
 from penfree.errors import InputError
-from penfree.scaleout import Task, expand_inputs, merge_partials, plan
+from penfree.formats.partials import merge_partials
+from penfree.scaleout import Task, expand_inputs, plan
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"
 #: Wall times differ between any two runs; everything else must be equal.

@@ -6,6 +6,10 @@ A `NeighbourList` builds the candidate pairs within ``r_b = r + skin`` of a *bui
 state* once and answers later queries at other states from them, as molecular-dynamics
 codes do, until the states have moved too far; then it rebuilds.
 
+(Longer than the ~400 lines of STYLE.md: about half of it is the Numba kernels that
+gather the listed pairs and fold their distances, which share the list's private
+layout with the class that drives them; splitting them out would export that layout.)
+
 Superset property (why reuse is exact). Let the list be built at ``x_b`` with radius
 ``r_b``: it holds every non-adjacent pair (edge-edge, vertex-face and, when asked for,
 edge-face) whose static boxes, inflated by ``r_b / 2`` on every side, overlap. Query at

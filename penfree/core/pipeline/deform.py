@@ -186,7 +186,7 @@ def start_state_intersections(seq, frames) -> np.ndarray:
     `verify.start_intersections` of ``positions[s]`` for every `s` in `frames` (0 for
     a scene without topology): the steps "started dirty" that `report` counts.
     """
-    from ..verify.path import start_intersections
+    from ..verify.pairs import start_intersections
 
     if seq.kind == "points":
         return np.zeros(len(frames), dtype=np.int64)

@@ -19,7 +19,8 @@ from ..fit.certificate import certify
 from ..topology import as_topology, referenced_vertices, scene_edges
 from ..verify.affine import verify_affine_step
 from ..verify.gate import margin_rule
-from ..verify.path import VerifyResult, check_thickness, verify_step
+from ..verify.path import check_thickness, verify_step
+from ..verify.result import VerifyResult
 from ..verify.reuse import result_lists
 
 MODES = ("auto", "ccd", "certificate")

@@ -14,7 +14,8 @@ from ...errors import InputError
 from ..fit.certificate import certify, fast_margin_bound
 from .gate import deviation_bound
 from .reuse import listed_start_pass
-from .path import VerifyResult, _bodies, _Collector, _edge_face, _pairs_self, check_thickness
+from .path import _bodies, _Collector, _edge_face, _pairs_self, check_thickness
+from .result import VerifyResult
 
 
 def _margin(A, need_positive):

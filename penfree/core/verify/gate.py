@@ -90,7 +90,7 @@ class StepGate:
         a candidate needs one (a strongly shrinking map): pairs it leaves out start
         farther apart than `reach`."""
         if self._near is None or reach > self._near_radius:
-            from .path import near_pairs
+            from .pairs import near_pairs
 
             self._near_radius = max(reach, NEAR_FIRST_FACTOR * self.thickness)
             self._near = [(kind, ij, idx, _start_distance(self.x, kind, idx))
@@ -116,7 +116,7 @@ class StepGate:
         return self._obstacles_ok(x_def64)
 
     def _near_ok(self, x_def64, maps) -> bool:
-        from .path import check_pairs
+        from .pairs import check_pairs
 
         limit = 0.5 * NEAR_SLACK_REL * self.thickness
         reach = 0.0  # pairs starting closer than this are not covered by the certificates

@@ -23,9 +23,6 @@ edges merged with the edges of their faces (`penfree.core.topology.scene_edges`)
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Optional
-
 import numpy as np
 from numba import njit
 
@@ -40,80 +37,11 @@ from ..contact.broad_phase import (
 from ..contact.ccd import SEPARATED, ccd_indexed
 from ..contact.distance import edge_edge_distance, point_triangle_distance
 from ..topology import as_positions, as_topology, scene_edges
+from .result import VerifyResult
 
 #: Candidate pairs handed to the narrow phase at once (bounds the per-block
 #: index and result arrays).
 _BLOCK = 1 << 18
-
-
-@dataclass
-class VerifyResult:
-    """Verdict of one step.
-
-    Attributes
-    ----------
-    ok : bool
-        True iff the start state is clean and no pair comes within `thickness`
-        along the path.
-    start_ok : bool
-    start_violations : list of (kind, i, j)
-        First start-state violations (at most `max_pairs`), see the module docstring.
-    n_start_violations : int
-    pairs : list of (kind, i, j, toi)
-        First path violations sorted by toi (a lower bound of the time of
-        contact in [0, 1]), at most `max_pairs`.
-    n_violations : int
-        Number of violating pairs along the path (all of them; with thickness
-        0, flagged pairs beyond `CCD_MAX_EXACT` per block of candidates are
-        counted without the exact decision, i.e. conservatively).
-    min_separation : float
-        Certified lower bound of the distance between any two checked
-        primitives over the whole path: the smallest of the per-pair lower
-        bounds proven by the CCD (0 for violating pairs, and for pairs that
-        only the exact decision could separate) and of the thickness, which
-        bounds every pair the broad phase did not pass on (so never +inf,
-        and never above the true minimum distance of any pair).
-    n_candidates : int
-        Pairs that went through the narrow phase along the path.
-    edges : (E, 2) int64 or None
-        The edges the ``"ee"``/``"ef"`` indices refer to (given edges, or the
-        edges of the faces when faces are given).
-    method : str
-        ``"ccd"`` or ``"certificate"`` (see `verify_affine_step`).
-    pre_existing : list of (kind, i, j)
-        With ``pre_existing=True`` (deform results): first pairs that already touch
-        or intersect at the start and that the path leaves as they were.
-    n_pre_existing : int
-    """
-
-    ok: bool
-    start_ok: bool
-    start_violations: list = field(default_factory=list)
-    n_start_violations: int = 0
-    pairs: list = field(default_factory=list)
-    n_violations: int = 0
-    min_separation: float = np.inf
-    n_candidates: int = 0
-    edges: Optional[np.ndarray] = field(default=None, repr=False)
-    method: str = "ccd"
-    pre_existing: list = field(default_factory=list)
-    n_pre_existing: int = 0
-
-    def to_dict(self) -> dict:
-        """JSON-ready summary (no arrays)."""
-        return {
-            "ok": bool(self.ok),
-            "start_ok": bool(self.start_ok),
-            "n_start_violations": int(self.n_start_violations),
-            "start_violations": [[k, int(i), int(j)] for k, i, j in self.start_violations],
-            "n_violations": int(self.n_violations),
-            "pairs": [[k, int(i), int(j), float(t)] for k, i, j, t in self.pairs],
-            "min_separation": float(self.min_separation),
-            "n_candidates": int(self.n_candidates),
-            "method": self.method,
-            "n_pre_existing": int(self.n_pre_existing),
-            "pre_existing": [[k, int(i), int(j)] for k, i, j in self.pre_existing],
-        }
 
 
 class _Body:
@@ -447,44 +375,3 @@ def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=
         n_candidates=path.n_candidates, edges=scene.E if len(scene.E) else None,
         pre_existing=[p[:3] for p in pre_list], n_pre_existing=n_pre,
     )
-
-
-def near_pairs(x, edges, faces, radius):
-    """The scene's own pairs that may lie within `radius` of each other at `x` (one query).
-
-    Returns
-    -------
-    list of (kind, ij, idx)
-        Candidates of the static broad phase with boxes inflated by half the radius
-        (a superset of the pairs closer than it), in the form `check_pairs` takes.
-    """
-    body = _Body(x, x, edges, faces, "scene")
-    return _self_candidates(body, body.x_t0, body.x_t0, _inflation(radius, body.x_t0))
-
-
-def check_pairs(pairs, x_t0, x_t1, thickness) -> bool:
-    """True when none of `pairs` (from `near_pairs`) violates along x_t0 -> x_t1.
-
-    Deform-result reading (`verify_step` with ``pre_existing=True``): a pair within
-    `thickness` at the start must stay disjoint, one touching at the start is left
-    as it was; every other pair must stay `thickness` apart (conservative CCD).
-    """
-    X0 = np.ascontiguousarray(x_t0, dtype=np.float64)
-    X1 = np.ascontiguousarray(x_t1, dtype=np.float64)
-    col, pre = _Collector(), _Collector()
-    for kind, ij, idx in pairs:
-        _narrow(col, kind, ij, idx, X0, X1, kind, thickness, pre=pre)
-    return not col.kinds
-
-
-def start_intersections(x, edges=None, faces=None) -> int:
-    """Pairs of non-adjacent primitives that already touch or intersect in state `x`.
-
-    Edge-face intersections (triangle scenes) plus vertex-face and edge-edge pairs
-    at distance 0 (exact static test); the count a deform result reports as its
-    step's pre-existing intersections.
-    """
-    scene = _Body(x, x, edges, faces, "scene")
-    col = _start_check(scene, [])
-    _pairs_self(col, scene, 0.0, static=True)
-    return int(col.first(0)[1])
