@@ -25,16 +25,11 @@ import numpy as np
 import penfree
 from penfree import constants as K
 
-from bench_fit import reference_or_own
+from bench_fit import reference_or_own, timings
 
 
 def median_time(fn, repeats):
-    fn()
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
+    ts = timings(fn, repeats)
     return float(np.median(ts)), float(np.mean(ts))
 
 

@@ -82,14 +82,19 @@ def reference_or_own(name, n):
             sys.path.remove(here)
 
 
-def median_time(fn, repeats):
+def timings(fn, repeats):
+    """Wall times of `repeats` calls of `fn`, after one untimed warm-up call."""
     fn()
     ts = []
     for _ in range(repeats):
         t0 = time.perf_counter()
         fn()
         ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
+    return ts
+
+
+def median_time(fn, repeats):
+    return float(np.median(timings(fn, repeats)))
 
 
 def lstsq_step(x_prev, x):

@@ -2,26 +2,17 @@
 
 from __future__ import annotations
 
-import importlib.util
 import sys
-from pathlib import Path
 
-import h5py
 import meshio
 import numpy as np
 import pytest
 
-SAMPLES = Path(__file__).resolve().parents[1] / "samples"
+from _samples import SAMPLES, load_module as _load_module, load_sample
+
 H5_SAMPLES = ["rods", "cloth", "twisting_cloth", "twisting_cloth_contact", "cables", "twisted_cables"]
 #: Committed files must stay small (brief: <= ~1.5 MB each, < ~5 MB in total).
 MAX_BYTES = 1_600_000
-
-
-def _load_module(name):
-    spec = importlib.util.spec_from_file_location(f"penfree_samples_{name}", SAMPLES / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 check = _load_module("check")
@@ -40,15 +31,7 @@ def pbd():
 
 @pytest.fixture(scope="module", params=H5_SAMPLES)
 def sample(request):
-    path = SAMPLES / f"{request.param}.h5"
-    assert path.exists(), f"missing committed sample {path}"
-    with h5py.File(path, "r") as f:
-        data = {k: f[k][()] for k in f}
-        data["attrs"] = dict(f.attrs)
-        data["chunks"] = f["positions"].chunks
-    data["name"] = request.param
-    data["bytes"] = path.stat().st_size
-    return data
+    return load_sample(request.param)
 
 
 def test_layout(sample):

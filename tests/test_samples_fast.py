@@ -2,34 +2,18 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
-import h5py
 import numpy as np
 import pytest
 
-SAMPLES = Path(__file__).resolve().parents[1] / "samples"
+from _samples import load_module, load_sample
+
 FAST_SAMPLES = ["falling_stack", "carried_stack", "swinging_coil"]
 MAX_BYTES = 600_000
 
 
-def _check_module():
-    spec = importlib.util.spec_from_file_location("penfree_samples_check_fast", SAMPLES / "check.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 @pytest.fixture(scope="module", params=FAST_SAMPLES)
 def sample(request):
-    path = SAMPLES / f"{request.param}.h5"
-    assert path.exists(), f"missing committed sample {path}"
-    with h5py.File(path, "r") as f:
-        data = {k: f[k][()] for k in f}
-        data["attrs"] = dict(f.attrs)
-    data["bytes"] = path.stat().st_size
-    return data
+    return load_sample(request.param)
 
 
 def test_layout_and_contact_radius(sample):
@@ -60,7 +44,7 @@ def test_fast_and_coherent(sample):
 
 @pytest.mark.parametrize("frame", [0, -1])
 def test_separation_at_frames(sample, frame):
-    check = _check_module()
+    check = load_module("check")
     x = sample["positions"][frame].astype(np.float64)
     thickness = float(sample["attrs"]["thickness"])
     d = check.step_min_distance(x, x, sample.get("edges"), sample.get("faces"), 2.0 * thickness + 1e-9,
