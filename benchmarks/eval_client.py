@@ -29,20 +29,9 @@ from penfree.core.pipeline.deform import deform_sequence
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 
 
-def _contact_radius(path, seq):
-    """The sequence's contact radius (read from the HDF5 attribute if the reader left it 0)."""
-    r = float(getattr(seq, "contact_radius", 0.0) or 0.0)
-    if not r and str(path).endswith(".h5"):
-        import h5py
-
-        with h5py.File(path, "r") as f:
-            r = float(f.attrs.get("contact_radius", 0.0))
-    return r
-
-
 def evaluate(path, every=1, client="ipctk", truncations=("isotropic", "planar")):
     seq = read_sequence(path)
-    dhat = resolve_dhat(None, _contact_radius(path, seq), seq.thickness)
+    dhat = resolve_dhat(None, seq.contact_radius, seq.thickness)
     rows = {}
     for tr in truncations:
         cm = ClientModel(truncation=tr, dhat=dhat, edges=seq.edges, faces=seq.faces)

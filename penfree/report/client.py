@@ -24,7 +24,7 @@ def client_section(result, *, client="ipctk", truncation="both", radius="both", 
     seq, steps = result.sequence, result.steps
     truncations = expand(truncation, TRUNCATIONS)
     radii = expand(radius, RADIUS_RULES)
-    dhat = resolve_dhat(dhat, getattr(seq, "contact_radius", 0.0), seq.thickness)
+    dhat = resolve_dhat(dhat, seq.contact_radius, seq.thickness)
     counts = client_counts(seq.positions, steps["deformed"], steps["frame"], edges=seq.edges, faces=seq.faces,
                            dhat=dhat, thickness=seq.thickness, truncations=truncations, radii=radii, every=every,
                            client=client, models=steps.get("model"), progress=progress)
