@@ -7,7 +7,7 @@ trust-region figures of its deformed state against the next frame (bounds recomp
 at that state: the *actual* figures, not the selection's predictions), and its
 certificate margin. The ``baseline`` row is the recorded state itself (no map); the
 ``x_pred`` row is the unsafe ideal (the prediction itself, no certificate), a ceiling.
-``auto`` is the collision-aware choice of `selection.select_step` when the scene has
+``auto`` is the collision-aware choice of `penfree.core.fit.auto.select_step` when the scene has
 topology (the residual-only choice of `fit_step` otherwise).
 """
 
