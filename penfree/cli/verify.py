@@ -6,7 +6,7 @@ from ..constants import DEFAULT_MAX_PAIRS
 from ..errors import InputError
 from .options import (
     Progress, echo_json, frames_option, json_option, parse_frames, scaleout_options, set_threads,
-    thickness_option, threads_option,
+    thickness_option, threads_option, usd_options,
 )
 
 
@@ -65,8 +65,10 @@ def _step_line(step):
 @click.option("--strict", is_flag=True,
               help="Deform results: a start state with pre-existing intersections fails its step "
                    "(default: reported, OK when the path leaves them unchanged).")
+@usd_options
 @scaleout_options
-def command(paths, thickness, frames, threads, as_json, max_pairs, mode, strict, workers, scheduler):
+def command(paths, thickness, frames, threads, as_json, max_pairs, mode, strict, usd_prims, usd_obstacles,
+            workers, scheduler):
     """Check that no two non-adjacent primitives come within THICKNESS along each step.
 
     A deform result is checked from positions[frame] to steps/deformed (plus the exact
@@ -83,6 +85,9 @@ def command(paths, thickness, frames, threads, as_json, max_pairs, mode, strict,
     if is_scaleout(paths, workers, scheduler):  # several inputs / Dask: penfree.scaleout
         from . import scaleout
 
+        if usd_prims or usd_obstacles:
+            raise InputError("--prim and --obstacle are not supported with several inputs or --workers/"
+                             "--scheduler; verify the USD stage on its own")
         if not scaleout.verify(paths, thickness=thickness, frames=frame_slice, mode=mode, max_pairs=max_pairs,
                                workers=workers, scheduler=scheduler, threads=threads, as_json=as_json,
                                step_line=_step_line, strict=strict):
@@ -92,7 +97,8 @@ def command(paths, thickness, frames, threads, as_json, max_pairs, mode, strict,
     set_threads(threads)
     with Progress(n_steps(path, frame_slice), "verify") as bar:
         report = verify_file(path, thickness=thickness, frames=frame_slice, mode=mode,
-                             max_pairs=max_pairs, progress=bar, strict=strict)
+                             max_pairs=max_pairs, progress=bar, strict=strict, prims=usd_prims,
+                             obstacles=usd_obstacles)
     if not report.steps:  # "all steps safe" about nothing would be a false claim
         raise InputError(f"--frames {frames} selects no step of {path} ({report.kind}); "
                          f"nothing to verify" if frames is not None else f"{path} holds no step to verify")

@@ -621,3 +621,20 @@ def test_shapes_module_contains_cube_exactly():
     # The USD cube of size 2 is [-1, 1]^3, as the schema says.
     V, _ = shapes.cube(2.0)
     assert np.array_equal(V, _cube_corners(2.0))
+
+
+def test_verify_prims_and_obstacles_choose_the_scene(tmp_path):
+    """`verify --prim/--obstacle` checks what it names: sheet A falls through sheet B."""
+    path = tmp_path / "through.usda"
+    stage = _stage(path)
+    _falling_sheet(stage, [1.0, 0.8], path="/World/A")
+    _falling_sheet(stage, [0.9, 0.91], path="/World/B")
+    stage.GetRootLayer().Save()
+    for args in ((), ("--prim", "/World/A", "--obstacle", "/World/B")):
+        both = _run("verify", path, *args)
+        assert both.exit_code == 1 and "VIOLATION" in both.output, (args, both.output)
+    for prim in ("/World/A", "/World/B"):
+        alone = _run("verify", path, "--prim", prim)
+        assert alone.exit_code == 0 and "all steps safe" in alone.output, alone.output
+    line = _error_line(_run("verify", path, "--prim", "/World/Nope"))
+    assert "/World/Nope" in line and "through.usda" in line

@@ -232,7 +232,7 @@ def _component_maps(res, k):
 
 
 def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEFAULT_MAX_PAIRS, progress=None,
-                strict=False):
+                strict=False, prims=None, obstacles=None):
     """Verify a deform result or a raw sequence file (any readable format).
 
     Parameters
@@ -248,6 +248,9 @@ def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEF
         Called once per step.
     strict : bool
         Deform results: pre-existing intersections of a start state fail the step.
+    prims, obstacles : sequence of str, optional
+        Raw USD stages: the prims read as the scene and as obstacles (as for
+        ``penfree deform --prim/--obstacle``); ignored for other formats.
 
     Returns
     -------
@@ -267,7 +270,7 @@ def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEF
     if is_result_file(path):
         return verify_result(read_result(path), thickness=thickness, frames=frames, mode=mode,
                              max_pairs=max_pairs, progress=progress, strict=strict)
-    seq = read_sequence(path)
+    seq = read_sequence(path, prims=prims, obstacles=obstacles)
     return verify_sequence(seq, thickness=thickness, frames=frames, max_pairs=max_pairs, progress=progress)
 
 
