@@ -231,8 +231,8 @@ def _unpack(source, deformed, frames, edges, faces, thickness, contact_radius=No
         edges = seq.edges if edges is None else edges
         faces = seq.faces if faces is None else faces
         thickness = seq.thickness if thickness is None else thickness
-        contact_radius = getattr(seq, "contact_radius", 0.0) if contact_radius is None else contact_radius
-        obstacles = getattr(seq, "obstacles", None) if obstacles is None else obstacles
+        contact_radius = seq.contact_radius if contact_radius is None else contact_radius
+        obstacles = seq.obstacles if obstacles is None else obstacles
     else:
         positions = source
     positions = np.asarray(positions)

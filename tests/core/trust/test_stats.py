@@ -298,7 +298,7 @@ def test_compute_stats_from_result_like_object(rng):
     pos, edges = _rod_scene(rng, T=3)
 
     class Seq:
-        positions, faces, thickness = pos, None, 0.0
+        positions, faces, thickness, contact_radius, obstacles = pos, None, 0.0, 0.0, ()
 
     Seq.edges = edges
 
