@@ -7,11 +7,14 @@ globs); with several inputs, ``--workers N`` or ``--scheduler ADDRESS`` the work
 Partitioning. ``deform`` and ``verify`` split each file into ranges of steps; a step `s`
 reads frames ``s - 1``, ``s`` and ``s + 1`` only, so ranges of steps need overlapping
 frames and nothing else: every task reads its file and runs the library on its steps
-with a frame slice (global frame indices throughout). Each ``deform`` range writes a
-partial result beside the output (``.<stem>.parts/``, each part written under a
-temporary name and renamed); when all ranges of a file are done the driver merges them
-in frame order into the layout of a serial run and writes it atomically, then removes
-the parts. ``report`` runs one task per file (statistics and ladder are per file).
+with a frame slice (global frame indices throughout). A file that is one task is
+deformed and written (atomically) by that task on its worker. Each ``deform`` range of a
+split file writes a partial result beside the output (``.<stem>.parts/``, each part
+written under a temporary name and renamed); one more task, which Dask runs once all
+ranges of the file are done, merges them in frame order into the layout of a serial run,
+writes it atomically and removes the parts. Only file names and the small per-step
+tables travel back to the driver; results are compressed and written by the workers in
+parallel. ``report`` runs one task per file (statistics and ladder are per file).
 
 Results are those of a serial run, bit for bit: every step is computed by the same
 code from the same frames, and the per-step tables are merged in frame order (the
@@ -26,6 +29,7 @@ import glob
 import math
 import os
 import shutil
+import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass
 
@@ -213,21 +217,33 @@ def run_tasks(c, fn, tasks, args=(), progress=None) -> list:
 
     A failed task raises InputError naming its file and range (the others are cancelled).
     """
+    futures = [c.submit(fn, t, *args, pure=False, key=_key()) for t in tasks]
+    return gather(futures, [t.label() for t in tasks], progress)
+
+
+def _key() -> str:
+    return f"penfree-{uuid.uuid4().hex}"
+
+
+def gather(futures, labels, progress=None) -> list:
+    """Results of `futures` in order, calling `progress` once per finished one.
+
+    A failure raises InputError naming the `labels` entry of the future that failed;
+    the others are cancelled.
+    """
     from distributed import as_completed
 
-    futures = [c.submit(fn, t, *args, pure=False, key=f"penfree-{k}-{os.getpid()}-{id(tasks)}")
-               for k, t in enumerate(tasks)]
     index = {f.key: k for k, f in enumerate(futures)}
-    results = [None] * len(tasks)
+    results = [None] * len(futures)
     try:
         for fut in as_completed(futures):
             k = index[fut.key]
             try:
                 results[k] = fut.result()
             except InputError as exc:
-                raise InputError(f"{tasks[k].label()}: {exc}") from None
+                raise InputError(f"{labels[k]}: {exc}") from None
             except Exception as exc:  # a worker failure: name the task, no traceback
-                raise InputError(f"task failed on {tasks[k].label()}: {type(exc).__name__}: {exc}") from None
+                raise InputError(f"task failed on {labels[k]}: {type(exc).__name__}: {exc}") from None
             if progress is not None:
                 progress()
     finally:
@@ -246,8 +262,8 @@ def _set_threads(threads):
 # --- deform ------------------------------------------------------------------------
 
 
-def deform_task(task, out_path, options, with_stats, threads):
-    """Worker: deform the steps of `task`, write the partial result, return its path."""
+def _deform(task, options, with_stats, threads):
+    """`(seq, steps, groups)` of the steps of `task` (read and run on the worker)."""
     from .core.pipeline.deform import deform_sequence, deform_stats
     from .formats import read_sequence
 
@@ -262,7 +278,51 @@ def deform_task(task, out_path, options, with_stats, threads):
     if with_stats:
         groups["stats"] = deform_stats(seq, out.steps, thickness=options["thickness"],
                                        contact_radius=options.get("contact_radius"))
-    return write_partial(out_path, out.steps, groups)
+    return seq, out.steps, groups
+
+
+def deform_task(task, out_path, options, with_stats, threads):
+    """Worker: deform the steps of `task`, write the partial result, return its path."""
+    _, steps, groups = _deform(task, options, with_stats, threads)
+    return write_partial(out_path, steps, groups)
+
+
+def deform_file_task(task, out_path, options, with_stats, threads, overwrite):
+    """Worker: deform a whole file (`task` without a range) and write its result itself.
+
+    Returns the per-step arrays without ``deformed`` (the summary the driver prints):
+    positions never travel back through the scheduler, and the result files of several
+    inputs are written (compressed) by the workers in parallel.
+    """
+    seq, steps, groups = _deform(task, options, with_stats, threads)
+    _write_output(task.path, out_path, seq, steps, groups, options, overwrite)
+    return _light(steps)
+
+
+def merge_task(path, out_path, parts, options, overwrite):
+    """Worker: merge the partial results of `path`'s frame ranges and write its result."""
+    from .formats import read_sequence
+
+    steps, groups = merge_partials(sorted(parts))
+    seq = read_sequence(path, format=options.get("format"))
+    _write_output(path, out_path, seq, steps, groups, options, overwrite)
+    shutil.rmtree(parts_dir(out_path), ignore_errors=True)
+    return _light(steps)
+
+
+def _light(steps) -> dict:
+    return {k: v for k, v in steps.items() if k != "deformed"}
+
+
+def _write_output(path, out_path, seq, steps, groups, options, overwrite):
+    """The result of `path` as a serial ``penfree deform`` writes it."""
+    from ._version import __version__
+    from .formats.result import write_result
+
+    opts = _options_of(options, seq, options.get("frames"))
+    attrs = {"penfree_version": __version__, "input": os.path.basename(path),
+             "options": dict(opts, weights="weights" if seq.weights is not None else None)}
+    write_result(out_path, seq, steps, attrs, groups=groups, overwrite=overwrite)
 
 
 def deform_many(specs, outdir, *, options, overwrite=False, with_stats=False, workers=None, scheduler=None,
@@ -283,12 +343,17 @@ def deform_many(specs, outdir, *, options, overwrite=False, with_stats=False, wo
 
     Returns
     -------
-    list of (input, output, steps) in input order.
+    list of (input, output, steps) in input order; `steps` without ``deformed``.
+
+    Notes
+    -----
+    A file that is one task is deformed and written by that task; a file split into
+    frame ranges is written by one more task, which merges the ranges' partial
+    results once they are done. Every result is written atomically; if a task fails,
+    the results of the files already finished stay (each complete), no partial
+    result stays.
     """
-    from ._version import __version__
-    from .formats import read_sequence
     from .formats.atomic import check_output
-    from .formats.result import write_result
 
     inputs = expand_inputs(specs)
     if os.path.exists(outdir) and not os.path.isdir(outdir):
@@ -296,37 +361,35 @@ def deform_many(specs, outdir, *, options, overwrite=False, with_stats=False, wo
     outs = output_paths(inputs, outdir)
     for o in outs:
         check_output(o, overwrite, inputs=inputs)
+    threads = threads or 1
     with client(workers, scheduler) as c:
         tasks = plan(inputs, n_workers_of(c), options.get("frames"))
-        if on_total is not None:
-            on_total(len(tasks))
         os.makedirs(outdir, exist_ok=True)
-        out_of = dict(zip(inputs, outs))
+        futures, labels, final = [], [], []
+        for path, out in zip(inputs, outs):
+            mine = [t for t in tasks if t.path == path]
+            if len(mine) == 1 and mine[0].lo is None:
+                fut = c.submit(deform_file_task, mine[0], out, options, with_stats, threads, overwrite,
+                               pure=False, key=_key())
+                labels.append(mine[0].label())
+            else:
+                parts = [c.submit(deform_task, t, out, options, with_stats, threads, pure=False, key=_key())
+                         for t in mine]
+                futures.extend(parts)
+                labels.extend(t.label() for t in mine)
+                fut = c.submit(merge_task, path, out, parts, options, overwrite, pure=False, key=_key())
+                labels.append(f"{path} (merging its frame ranges)")
+            futures.append(fut)
+            final.append(fut)
+        if on_total is not None:
+            on_total(len(futures))
         try:
-            parts = run_tasks(c, _deform_entry, tasks, (out_of, options, with_stats, threads or 1), progress)
-        except BaseException:
+            results = gather(futures, labels, progress)
+        finally:  # partial results never outlive the run, merged or not
             for o in outs:
                 shutil.rmtree(parts_dir(o), ignore_errors=True)
-            raise
-    done = []
-    try:
-        for path, out in zip(inputs, outs):
-            mine = sorted(p for t, p in zip(tasks, parts) if t.path == path)
-            steps, groups = merge_partials(mine)
-            seq = read_sequence(path, format=options.get("format"))
-            opts = _options_of(options, seq, options.get("frames"))
-            attrs = {"penfree_version": __version__, "input": os.path.basename(path),
-                     "options": dict(opts, weights="weights" if seq.weights is not None else None)}
-            write_result(out, seq, steps, attrs, groups=groups, overwrite=overwrite)
-            done.append((path, out, steps))
-    finally:  # partial results never outlive the run, merged or not
-        for o in outs:
-            shutil.rmtree(parts_dir(o), ignore_errors=True)
-    return done
-
-
-def _deform_entry(task, out_of, options, with_stats, threads):
-    return deform_task(task, out_of[task.path], options, with_stats, threads)
+    index = {f.key: k for k, f in enumerate(futures)}
+    return [(path, out, results[index[f.key]]) for path, out, f in zip(inputs, outs, final)]
 
 
 def _options_of(options, seq, frames):

@@ -123,6 +123,25 @@ def test_deform_many_equals_serial(inputs, tmp_path, scheduler, extra):
     assert sorted(p.name for p in out.iterdir()) == ["rods.h5", "twisting_cloth.h5"]  # no parts left behind
 
 
+def test_whole_file_tasks_write_their_results(inputs, tmp_path, scheduler):
+    # Four files on two workers: one task per file, each writing its own result (no
+    # partials, no merge); the outputs still equal serial runs.
+    for name in ("rods.h5", "twisting_cloth.h5"):
+        shutil.copy(inputs / name, inputs / f"b_{name}")
+    paths = sorted(str(p) for p in inputs.glob("*.h5"))
+    assert [t.lo for t in plan(paths, 2)] == [None] * 4
+    runner = CliRunner()
+    out = tmp_path / "out"
+    args = ["--model", "affine", "--frames", ":10"]
+    r = runner.invoke(main, ["deform", str(inputs), "-o", str(out), "--scheduler", scheduler, "--json", *args])
+    assert r.exit_code == 0, r.output
+    for src in sorted(inputs.glob("*.h5")):
+        serial = tmp_path / f"serial-{src.stem}.h5"
+        assert runner.invoke(main, ["deform", str(src), "-o", str(serial), *args]).exit_code == 0
+        assert_same_result(out / f"{src.stem}.h5", serial)
+    assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in inputs.glob("*.h5"))
+
+
 def test_deform_local_workers_and_no_silent_overwrite(inputs, tmp_path):
     pytest.importorskip("distributed")
     runner = CliRunner()
