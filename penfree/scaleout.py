@@ -6,8 +6,10 @@ globs); with several inputs, ``--workers N`` or ``--scheduler ADDRESS`` the work
 
 Partitioning. ``deform`` and ``verify`` split each file into ranges of steps; a step `s`
 reads frames ``s - 1``, ``s`` and ``s + 1`` only, so ranges of steps need overlapping
-frames and nothing else: every task reads its file and runs the library on its steps
-with a frame slice (global frame indices throughout). A file that is one task is
+frames and nothing else: a ``deform`` range reads just the frames ``lo - 1 .. hi`` of
+its file (HDF5 ``frame_window``) and runs the library on them, its frame numbers
+shifted back to the file's; ``verify`` tasks read their file and select their steps
+with a frame slice. A file that is one task is
 deformed and written (atomically) by that task on its worker. Each ``deform`` range of a
 split file writes a partial result beside the output (``.<stem>.parts/``, each part
 written under a temporary name and renamed); one more task, which Dask runs once all
@@ -42,7 +44,7 @@ from .formats.partials import merge_partials, parts_dir, write_partial
 DIRECTORY_PATTERNS = ("*.h5", "*.hdf5")
 #: Tasks per worker the partitioner aims for (balance without tiny tasks).
 TASKS_PER_WORKER = 2
-#: A frame range holds at least this many steps (each task reads its whole file).
+#: A frame range holds at least this many steps.
 MIN_STEPS_PER_TASK = 4
 
 DASK_MISSING = ("several inputs, --workers and --scheduler need Dask, which is not installed; "
@@ -268,8 +270,14 @@ def _deform(task, options, with_stats, threads):
     from .formats import read_sequence
 
     _set_threads(threads)
-    seq = read_sequence(task.path, format=options.get("format"))
-    frames = options.get("frames") if task.lo is None else task.frames()
+    first = 0  # the file's frame number of the first frame read
+    if task.lo is None:
+        seq = read_sequence(task.path, format=options.get("format"))
+        frames = options.get("frames")
+    else:  # a range (HDF5 only, see `plan`): read frames lo - 1 .. hi, the ones its steps use
+        first = task.lo - 1
+        seq = read_sequence(task.path, format=options.get("format"), frame_window=(first, task.hi + 1))
+        frames = (1, task.hi - first)
     out = deform_sequence(seq, model=options["model"], projection=options["projection"], margin=options["margin"],
                           thickness=options["thickness"], contact_radius=options.get("contact_radius"),
                           frames=frames, per_vertex=options["per_vertex"],
@@ -278,6 +286,8 @@ def _deform(task, options, with_stats, threads):
     if with_stats:
         groups["stats"] = deform_stats(seq, out.steps, thickness=options["thickness"],
                                        contact_radius=options.get("contact_radius"))
+        groups["stats"]["frame"] = groups["stats"]["frame"] + first
+    out.steps["frame"] = out.steps["frame"] + first
     return seq, out.steps, groups
 
 

@@ -211,3 +211,30 @@ def test_single_input_output_directory_is_refused(inputs, tmp_path):
     r = CliRunner().invoke(main, ["deform", str(inputs / "rods.h5"), "-o", str(out), "--overwrite"])
     assert r.exit_code == 2 and "is a directory" in r.output
     assert not any(out.iterdir())
+
+
+def test_range_task_reads_only_its_frames_and_equals_the_full_read(tmp_path, monkeypatch):
+    # A frame range's task (run here in-process) reads frames lo-1 .. hi only, and its
+    # partial result equals the same steps of a full read, frame numbers included.
+    import penfree.formats as formats
+    from penfree.core.pipeline.deform import deform_sequence
+
+    path = str(SAMPLES / "rods.h5")
+    seen = []
+    real = formats.read_sequence
+
+    def spy(*args, **kw):
+        seen.append(kw.get("frame_window"))
+        return real(*args, **kw)
+
+    monkeypatch.setattr(formats, "read_sequence", spy)
+    opts = {"model": "auto", "projection": "auto", "margin": None, "thickness": None, "per_vertex": True,
+            "frames": None}
+    part = scaleout.deform_task(Task(path, 5, 9), str(tmp_path / "x.h5"), opts, True, 1)
+    assert seen == [(4, 10)]
+    steps, groups = merge_partials([part])
+    ref = deform_sequence(real(path), model="auto", frames=(5, 9), per_vertex=True, check_start=True)
+    assert steps["frame"].tolist() == [5, 6, 7, 8] and groups["stats"]["frame"].tolist() == [5, 6, 7, 8]
+    for k, v in ref.steps.items():
+        if k != "time_fit_s":
+            assert np.array_equal(steps[k], v, equal_nan=v.dtype.kind == "f"), k
