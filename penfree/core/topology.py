@@ -159,7 +159,7 @@ def scene_edges(E, F) -> np.ndarray:
     E = np.unique(np.concatenate([np.sort(E, axis=1), FE]), axis=0) if len(E) else FE
     res = np.ascontiguousarray(E[E[:, 0] != E[:, 1]])
     _SCENE_EDGES_SEEN.append((E_in, np.array(F, copy=True), res.copy()))
-    del _SCENE_EDGES_SEEN[:-_SCENE_EDGES_KEEP]
+    del _SCENE_EDGES_SEEN[:max(0, len(_SCENE_EDGES_SEEN) - _SCENE_EDGES_KEEP)]
     return res
 
 
