@@ -123,6 +123,25 @@ def test_deform_many_equals_serial(inputs, tmp_path, scheduler, extra):
     assert sorted(p.name for p in out.iterdir()) == ["rods.h5", "twisting_cloth.h5"]  # no parts left behind
 
 
+def test_whole_file_tasks_write_their_results(inputs, tmp_path, scheduler):
+    # Four files on two workers: one task per file, each writing its own result (no
+    # partials, no merge); the outputs still equal serial runs.
+    for name in ("rods.h5", "twisting_cloth.h5"):
+        shutil.copy(inputs / name, inputs / f"b_{name}")
+    paths = sorted(str(p) for p in inputs.glob("*.h5"))
+    assert [t.lo for t in plan(paths, 2)] == [None] * 4
+    runner = CliRunner()
+    out = tmp_path / "out"
+    args = ["--model", "affine", "--frames", ":10"]
+    r = runner.invoke(main, ["deform", str(inputs), "-o", str(out), "--scheduler", scheduler, "--json", *args])
+    assert r.exit_code == 0, r.output
+    for src in sorted(inputs.glob("*.h5")):
+        serial = tmp_path / f"serial-{src.stem}.h5"
+        assert runner.invoke(main, ["deform", str(src), "-o", str(serial), *args]).exit_code == 0
+        assert_same_result(out / f"{src.stem}.h5", serial)
+    assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in inputs.glob("*.h5"))
+
+
 def test_deform_local_workers_and_no_silent_overwrite(inputs, tmp_path):
     pytest.importorskip("distributed")
     runner = CliRunner()
@@ -192,3 +211,30 @@ def test_single_input_output_directory_is_refused(inputs, tmp_path):
     r = CliRunner().invoke(main, ["deform", str(inputs / "rods.h5"), "-o", str(out), "--overwrite"])
     assert r.exit_code == 2 and "is a directory" in r.output
     assert not any(out.iterdir())
+
+
+def test_range_task_reads_only_its_frames_and_equals_the_full_read(tmp_path, monkeypatch):
+    # A frame range's task (run here in-process) reads frames lo-1 .. hi only, and its
+    # partial result equals the same steps of a full read, frame numbers included.
+    import penfree.formats as formats
+    from penfree.core.pipeline.deform import deform_sequence
+
+    path = str(SAMPLES / "rods.h5")
+    seen = []
+    real = formats.read_sequence
+
+    def spy(*args, **kw):
+        seen.append(kw.get("frame_window"))
+        return real(*args, **kw)
+
+    monkeypatch.setattr(formats, "read_sequence", spy)
+    opts = {"model": "auto", "projection": "auto", "margin": None, "thickness": None, "per_vertex": True,
+            "frames": None}
+    part = scaleout.deform_task(Task(path, 5, 9), str(tmp_path / "x.h5"), opts, True, 1)
+    assert seen == [(4, 10)]
+    steps, groups = merge_partials([part])
+    ref = deform_sequence(real(path), model="auto", frames=(5, 9), per_vertex=True, check_start=True)
+    assert steps["frame"].tolist() == [5, 6, 7, 8] and groups["stats"]["frame"].tolist() == [5, 6, 7, 8]
+    for k, v in ref.steps.items():
+        if k != "time_fit_s":
+            assert np.array_equal(steps[k], v, equal_nan=v.dtype.kind == "f"), k

@@ -148,10 +148,27 @@ def scene_edges(E, F) -> np.ndarray:
     [[0, 1], [0, 2], [0, 4], [1, 2]]
     """
     E = np.asarray(E, dtype=np.int64).reshape(-1, 2)
-    if len(F):
-        FE = edges_from_faces(F)
-        E = np.unique(np.concatenate([np.sort(E, axis=1), FE]), axis=0) if len(E) else FE
-    return np.ascontiguousarray(E[E[:, 0] != E[:, 1]])
+    if not len(F):
+        return np.ascontiguousarray(E[E[:, 0] != E[:, 1]])
+    F = np.asarray(F)
+    for cE, cF, res in _SCENE_EDGES_SEEN:
+        if cE.shape == E.shape and cF.shape == F.shape and np.array_equal(cF, F) and np.array_equal(cE, E):
+            return res.copy()
+    FE = edges_from_faces(F)
+    E_in = E.copy()
+    E = np.unique(np.concatenate([np.sort(E, axis=1), FE]), axis=0) if len(E) else FE
+    res = np.ascontiguousarray(E[E[:, 0] != E[:, 1]])
+    _SCENE_EDGES_SEEN.append((E_in, np.array(F, copy=True), res.copy()))
+    del _SCENE_EDGES_SEEN[:max(0, len(_SCENE_EDGES_SEEN) - _SCENE_EDGES_KEEP)]
+    return res
+
+
+#: The last few (segments, faces, edge set) of `scene_edges` with faces: the same mesh is
+#: asked for once per step by every pass over a recording, and deriving a 130K-triangle
+#: mesh's edges (a sort of 390K keys) costs ~0.1-0.2 s each time; comparing the
+#: topology with a remembered one costs ~1 ms. Matched by content, never by identity.
+_SCENE_EDGES_KEEP = 4
+_SCENE_EDGES_SEEN: list = []
 
 
 def vertex_incidence(T, n_vertices: int):

@@ -152,18 +152,34 @@ def _float_dtype(ds, where, name) -> np.dtype:
     raise FormatError(f"{name} must be float32 or float64; got {dt} in {where}:/{name}")
 
 
-def read_positions(ds, where, name="positions") -> np.ndarray:
-    """Read ``(T, N, 3)`` frame by frame into one array, naming the first non-finite frame."""
+def read_positions(ds, where, name="positions", window=None) -> np.ndarray:
+    """Read ``(T, N, 3)`` frame by frame into one array, naming the first non-finite frame.
+
+    `window` ``(start, stop)`` reads only those frames (`frame_window`); frame numbers in
+    messages stay those of the file.
+    """
     if ds.ndim != 3 or ds.shape[2] != 3:
         raise FormatError(f"{name} must be (T, N, 3); got {ds.shape} in {where}:/{name}")
     if ds.shape[0] < 2 and name == "positions":
         raise InputError(f"positions must hold at least 2 frames; got {ds.shape[0]} in {where}:/positions")
-    out = np.empty(ds.shape, dtype=_float_dtype(ds, where, name))
-    for s in range(ds.shape[0]):
-        out[s] = ds[s]
-        if not np.isfinite(out[s]).all():
+    start, stop = frame_window(window, ds.shape[0], where)
+    out = np.empty((stop - start,) + ds.shape[1:], dtype=_float_dtype(ds, where, name))
+    for s in range(start, stop):
+        out[s - start] = ds[s]
+        if not np.isfinite(out[s - start]).all():
             raise InputError(f"{name} must be finite; frame {s} holds NaN or Inf in {where}:/{name}")
     return out
+
+
+def frame_window(window, T, where) -> tuple:
+    """``(start, stop)`` of a frame window within ``T`` frames (stop clipped to T, as a slice
+    would); None is every frame. A window must hold at least 2 frames."""
+    if window is None:
+        return 0, T
+    start, stop = int(window[0]), min(int(window[1]), T)
+    if not (start >= 0 and stop - start >= 2):
+        raise InputError(f"frame window {window[0]}:{window[1]} must hold at least 2 of the {T} frames of {where}")
+    return start, stop
 
 
 def _read_array(g, name, where, kind, prefix=""):
@@ -190,8 +206,12 @@ def _scalar_attr(attrs, key, where):
     return float(value)
 
 
-def read_from_h5(f: h5py.File, where: str) -> Sequence:
-    """The layout-v1 sequence held by an open file (not yet validated)."""
+def read_from_h5(f: h5py.File, where: str, window=None) -> Sequence:
+    """The layout-v1 sequence held by an open file (not yet validated).
+
+    `window` ``(start, stop)``: only those frames of the positions and of per-frame
+    obstacles (a frame range's task of `penfree.scaleout` reads just what its steps need).
+    """
     version = f.attrs.get("penfree_format")
     if version is not None:
         version = decode_attr(version, f"{where}:@penfree_format")
@@ -205,7 +225,7 @@ def read_from_h5(f: h5py.File, where: str) -> Sequence:
     if ds is None:
         raise FormatError(f"missing dataset positions (T, N, 3) in {where}:/positions")
     seq = Sequence(
-        positions=read_positions(ds, where),
+        positions=read_positions(ds, where, window=window),
         edges=_read_array(f, "edges", where, "iuf"),
         faces=_read_array(f, "faces", where, "iuf"),
         weights=_read_array(f, "weights", where, "iuf"),
@@ -226,11 +246,11 @@ def read_from_h5(f: h5py.File, where: str) -> Sequence:
         if not isinstance(obs, h5py.Group):
             raise FormatError(f"obstacles must be a group of obstacles/<name> groups ({OBSTACLE_FORMS}) in {where}:/obstacles")
         for name in sorted(obs):
-            seq.obstacles.append(_read_obstacle(obs[name], f"obstacles/{name}", name, where))
+            seq.obstacles.append(_read_obstacle(obs[name], f"obstacles/{name}", name, where, window, ds.shape[0]))
     return seq
 
 
-def _read_obstacle(g, path, name, where) -> Obstacle:
+def _read_obstacle(g, path, name, where, window=None, T=None) -> Obstacle:
     """A mesh obstacle (positions or vertices, with faces or edges) or a half-space (normal, offset)."""
     keys = set(g) if isinstance(g, h5py.Group) else set()
     mesh = [k for k in ("positions", "vertices") if k in keys]
@@ -248,8 +268,8 @@ def _read_obstacle(g, path, name, where) -> Obstacle:
         pos = ds[()]
         if pos.shape[-1] != 3 or pos.dtype.kind not in "fiu":
             raise FormatError(f"{ds_name} must be (T, M, 3) or (M, 3) float; got {pos.shape} {pos.dtype} in {where}:/{ds_name}")
-    else:
-        pos = read_positions(ds, where, ds_name)
+    else:  # per frame: the sequence's window, when it has the sequence's T frames (else validation says so)
+        pos = read_positions(ds, where, ds_name, window if ds.shape[0] == T else None)
     return Obstacle(
         name=name,
         positions=pos,
@@ -282,9 +302,10 @@ def _read_half_space(g, path, name, where) -> Obstacle:
     return Obstacle(name=name, normal=np.asarray(normal), offset=offset)
 
 
-def read_hdf5(path: str) -> Sequence:
+def read_hdf5(path: str, frame_window=None) -> Sequence:
+    """Read a layout-v1 file; `frame_window` ``(start, stop)`` reads only those frames."""
     with open_h5(path) as f:
-        return read_from_h5(f, path)
+        return read_from_h5(f, path, frame_window)
 
 
 # --- writing -----------------------------------------------------------------
@@ -345,4 +366,4 @@ def _sniff(path: str, writing: bool = False) -> bool:
     return not writing and os.path.isfile(path) and has_h5_magic(path)
 
 
-register("hdf5", (".h5", ".hdf5", ".he5"), read_hdf5, write_hdf5, sniff=_sniff)
+register("hdf5", (".h5", ".hdf5", ".he5"), read_hdf5, write_hdf5, sniff=_sniff, options=("frame_window",))

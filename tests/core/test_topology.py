@@ -95,3 +95,19 @@ def test_scene_edges_against_set_oracle(rng, case):
         assert [tuple(e) for e in got.tolist()] == _edge_set_oracle(E.tolist(), F.tolist())
     else:  # segments keep their order (pair indices refer to it); only (i, i) go
         assert got.tolist() == [e for e in E.tolist() if e[0] != e[1]]
+
+
+def test_scene_edges_remembered_by_content_not_identity(rng):
+    # The same mesh asked for again (each step of a recording) comes from the memo; a
+    # changed mesh in the same array, or a caller writing into a result, must not.
+    n = 30
+    E = rng.integers(0, n, size=(5, 2))
+    F = rng.integers(0, n, size=(40, 3))
+    first = scene_edges(E, F)
+    first[:] = -1  # the caller owns what it got
+    again = scene_edges(E.copy(), F.copy())
+    assert [tuple(e) for e in again.tolist()] == _edge_set_oracle(E.tolist(), F.tolist())
+    F[0] = [0, 1, 2]
+    E[0] = [3, 4]
+    changed = scene_edges(E, F)
+    assert [tuple(e) for e in changed.tolist()] == _edge_set_oracle(E.tolist(), F.tolist())

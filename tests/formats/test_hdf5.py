@@ -52,6 +52,31 @@ def test_round_trip(tmp_path, rng, dtype, kind):
         assert f.attrs["penfree_format"] == 1
 
 
+@pytest.mark.parametrize("window", [(0, 2), (1, 3), (2, 4), (1, 99)])
+def test_frame_window_reads_a_slice_of_the_frames(tmp_path, rng, window):
+    # A scale-out frame range reads only its frames: the window equals the slice of a
+    # full read, per-frame obstacles included (static ones whole); stop clips like a slice.
+    seq = scene_arrays(rng, np.float32).validate()
+    path = str(tmp_path / "frames.h5")
+    write_sequence(path, seq)
+    full, part = read_sequence(path), read_sequence(path, frame_window=window)
+    sl = slice(*window)
+    np.testing.assert_array_equal(part.positions, full.positions[sl])
+    np.testing.assert_array_equal(part.obstacles[0].positions, full.obstacles[0].positions)  # static
+    np.testing.assert_array_equal(part.obstacles[1].positions, full.obstacles[1].positions[sl])
+    np.testing.assert_array_equal(part.faces, full.faces)
+    assert part.thickness == full.thickness and part.attrs == full.attrs
+
+
+@pytest.mark.parametrize("window", [(3, 4), (4, 9), (-1, 2)])
+def test_frame_window_of_fewer_than_two_frames_is_refused(tmp_path, rng, window):
+    seq = scene_arrays(rng, np.float64).validate()
+    path = str(tmp_path / "frames.h5")
+    write_sequence(path, seq)
+    with pytest.raises(InputError, match="frame window .* at least 2 of the 4 frames"):
+        read_sequence(path, frame_window=window)
+
+
 def test_reads_a_minimal_foreign_file(tmp_path, rng):
     """Written by someone else: int32 topology, float32, a contact_radius (not a thickness), odd extension."""
     path = str(tmp_path / "sim.dat")

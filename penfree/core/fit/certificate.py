@@ -25,6 +25,8 @@ from ..polynomial import add, count_roots_01, mul, sub, trim
 
 
 def _check_A(A) -> np.ndarray:
+    if type(A) is np.ndarray and A.dtype == np.float64 and A.shape == (3, 3):
+        return A  # the common case, read only below (fit_step calls this per candidate)
     arr = np.asarray(A)
     if arr.shape != (3, 3):
         raise InputError(f"A must be (3, 3); got shape {arr.shape}")

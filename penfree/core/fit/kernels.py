@@ -22,7 +22,7 @@ _W, _SP, _SD, _SPP, _SDP, _SDD, _SW2, _NMOM = 0, 1, 4, 7, 13, 22, 23, 24
 _SYM = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 
 
-def _moments_py(x_prev, x, w, use_w, n_chunks):
+def _moments_py(x_prev, x, w, n_chunks):
     # Shift every vertex by the first vertex (and its displacement) before
     # accumulating: second moments of coordinates 1e6 from the origin would
     # otherwise cancel catastrophically when centred afterwards.
@@ -52,16 +52,24 @@ def _moments_py(x_prev, x, w, use_w, n_chunks):
             q0 = (a0 - np.float64(x_prev[i3])) - d00
             q1 = (a1 - np.float64(x_prev[i3 + np.uint64(1)])) - d01
             q2 = (a2 - np.float64(x_prev[i3 + np.uint64(2)])) - d02
-            wi = w[i] if use_w else 1.0
-            wp0, wp1, wp2 = wi * p0, wi * p1, wi * p2
-            sw += wi
-            sw2 += wi * wi
+            if w is None:
+                wp0, wp1, wp2 = p0, p1, p2
+                sd0 += q0
+                sd1 += q1
+                sd2 += q2
+                sdd += q0 * q0 + q1 * q1 + q2 * q2
+            else:
+                wi = w[i]
+                wp0, wp1, wp2 = wi * p0, wi * p1, wi * p2
+                sw += wi
+                sw2 += wi * wi
+                sd0 += wi * q0
+                sd1 += wi * q1
+                sd2 += wi * q2
+                sdd += wi * (q0 * q0 + q1 * q1 + q2 * q2)
             sp0 += wp0
             sp1 += wp1
             sp2 += wp2
-            sd0 += wi * q0
-            sd1 += wi * q1
-            sd2 += wi * q2
             c00 += wp0 * p0
             c11 += wp1 * p1
             c22 += wp2 * p2
@@ -77,7 +85,8 @@ def _moments_py(x_prev, x, w, use_w, n_chunks):
             g20 += q2 * wp0
             g21 += q2 * wp1
             g22 += q2 * wp2
-            sdd += wi * (q0 * q0 + q1 * q1 + q2 * q2)
+        if w is None:
+            sw = sw2 = float(hi - lo)
         row = part[k]
         row[0] = sw
         row[1], row[2], row[3] = sp0, sp1, sp2
@@ -121,9 +130,9 @@ _moments_parallel = njit(cache=True, parallel=True, fastmath=_FIT_FASTMATH)(
     cache_variant(_moments_py, "_moments_parallel"))
 
 
-def _moments_kernel(x_prev, x, w, use_w, n_chunks):
+def _moments_kernel(x_prev, x, w, n_chunks):
     big = x.shape[0] >= K.PARALLEL_MIN_VERTICES
-    return (_moments_parallel if big else _moments_serial)(x_prev.reshape(-1), x.reshape(-1), w, use_w, n_chunks)
+    return (_moments_parallel if big else _moments_serial)(x_prev.reshape(-1), x.reshape(-1), w, n_chunks)
 
 
 @njit(cache=True)
@@ -181,6 +190,31 @@ def _subspace_kernel(C, G, qq, n_eff, floor, rtol, tol):
     for k in range(3):
         keep[k] = keep[k] and sigma2 <= tol * tol * lam[k]
     return lam, E, keep
+
+
+@njit(cache=True)
+def _gain_kernel(D, C, G):
+    # trace(D C D^T) - 2 trace(D G^T), summed in a fixed order.
+    s = 0.0
+    for a in range(3):
+        for b in range(3):
+            dcb = D[a, 0] * C[0, b] + D[a, 1] * C[1, b] + D[a, 2] * C[2, b]
+            s += dcb * D[a, b] - 2.0 * D[a, b] * G[a, b]
+    return s
+
+
+@njit(cache=True)
+def _slopes_kernel(G, E, lam, keep):
+    # D = sum over kept k of (G e_k / lam_k) e_k^T: the affine slope on the kept
+    # eigen-directions of C, 0 on the others.
+    D = np.zeros((3, 3))
+    for k in range(3):
+        if keep[k]:
+            for a in range(3):
+                s = (G[a, 0] * E[0, k] + G[a, 1] * E[1, k] + G[a, 2] * E[2, k]) / lam[k]
+                for b in range(3):
+                    D[a, b] += s * E[b, k]
+    return D
 
 
 def _apply_py(x_prev, x, D, u, c, out, evaluate, out32, n_chunks):

@@ -14,7 +14,7 @@ import numpy as np
 
 from ... import constants as K
 from ...errors import InputError
-from .kernels import _apply_kernel, _finish_kernel, _moments_kernel, _subspace_kernel
+from .kernels import _apply_kernel, _finish_kernel, _gain_kernel, _moments_kernel, _slopes_kernel, _subspace_kernel
 
 
 @dataclass(frozen=True)
@@ -126,8 +126,7 @@ def fit_moments(x_prev, x, weights=None, *, validate: bool = True) -> Moments:
         x_prev = as_positions(x_prev, "x_prev", x.shape[0], check_finite=False)
         weights = as_weights(weights, x.shape[0])
     use_w = weights is not None
-    w = weights if use_w else np.empty(0)
-    tot = _moments_kernel(x_prev, x, w, use_w, K.REDUCTION_CHUNKS)
+    tot = _moments_kernel(x_prev, x, weights, K.REDUCTION_CHUNKS)
     if not np.isfinite(tot).all():
         # Any NaN/Inf input poisons the sums; find which input to name it.
         as_positions(x, "x")
@@ -184,10 +183,15 @@ def significant_subspace(m: Moments, slope_tol: float | None = None):
     data does not span. On exact affine data ``sigma = 0`` and every spanned
     direction is kept, so exact maps are recovered.
     """
+    lam, E, keep = _subspace(m, slope_tol)
+    return E[:, keep], lam[keep]
+
+
+def _subspace(m: Moments, slope_tol):
+    """`significant_subspace` as ``(lam (3,), E (3, 3), keep (3,) bool)``, all three directions."""
     tol = K.FIT_NOISE_SLOPE_TOL if slope_tol is None else float(slope_tol)
     floor = (K.FIT_PRECISION_FACTOR * m.input_eps * m.coord_scale) ** 2 * m.W
-    lam, E, keep = _subspace_kernel(m.C, m.G, m.qq, m.n_eff, floor, K.PINV_RTOL_FLOOR, tol)
-    return E[:, keep], lam[keep]
+    return _subspace_kernel(m.C, m.G, m.qq, m.n_eff, floor, K.PINV_RTOL_FLOOR, tol)
 
 
 # --- models ------------------------------------------------------------------
@@ -203,9 +207,8 @@ def fit_affine(m: Moments, slope_tol=None):
 
     Returns ``(D (3,3), u (3,), rank)``; see `significant_subspace` for the cut-off.
     """
-    E, lam = significant_subspace(m, slope_tol)
-    D = (m.G @ E / lam) @ E.T
-    return D, m.u.copy(), E.shape[1]
+    lam, E, keep = _subspace(m, slope_tol)
+    return _slopes_kernel(m.G, E, lam, keep), m.u.copy(), int(keep.sum())
 
 
 def _minimal_rotation(a, b):
@@ -282,8 +285,8 @@ def residual_gain(m: Moments, D) -> float:
     Computed from the moments as ``trace(D C D^T) - 2 trace(D G^T)``, without
     the large ``sum w |Q|^2`` term, so it does not cancel.
     """
-    D = np.asarray(D, dtype=np.float64)
-    return float(np.sum((D @ m.C) * D) - 2.0 * np.sum(D * m.G))
+    D = np.ascontiguousarray(D, dtype=np.float64)
+    return float(_gain_kernel(D, m.C, m.G))
 
 
 def weighted_rms(m: Moments, D) -> float:

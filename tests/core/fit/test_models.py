@@ -315,12 +315,16 @@ def _run(x_prev, x, w):
     return m, out, stats
 
 
-def test_deterministic_across_thread_counts_and_builds(rng, monkeypatch):
+@pytest.mark.parametrize("weighted", [True, False])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_deterministic_across_thread_counts_and_builds(rng, monkeypatch, weighted, dtype):
     # Bitwise identical results for 1 and 2 threads with the parallel build
-    # forced (threshold 0), and identical to the serial build small N uses.
+    # forced (threshold 0), and identical to the serial build small N uses
+    # (weighted and unweighted builds of the moment kernel, both input dtypes).
     x = rng.standard_normal((5000, 3)) + 100.0
-    x_prev = x - 1e-2 * rng.standard_normal((5000, 3))
-    w = rng.uniform(0, 1, 5000)
+    x_prev = (x - 1e-2 * rng.standard_normal((5000, 3))).astype(dtype)
+    x = x.astype(dtype)
+    w = rng.uniform(0, 1, 5000) if weighted else None
     old = numba.get_num_threads()
     runs = []
     try:
@@ -394,3 +398,14 @@ def test_apply_map_nonfinite_poisons_the_summaries(rng, monkeypatch, bad, build)
     _, stats = F.apply_map(x, np.zeros((3, 3)), np.full(3, 1e-2), x.mean(axis=0), x_prev=x_prev)
     for key in ("residual_pred_max", "baseline_pred_max", "residual_pred_rms", "baseline_pred_rms"):
         assert not np.isfinite(stats[key]), key
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_unweighted_moments_equal_unit_weights(rng, dtype):
+    # The unweighted kernel (no weight loads or multiplies) against the weighted one
+    # with every weight 1: the same sums up to the order of the additions.
+    x = (rng.standard_normal((3000, 3)) + 10.0).astype(dtype)
+    x_prev = (x - 1e-2 * rng.standard_normal((3000, 3))).astype(dtype)
+    a, b = F.fit_moments(x_prev, x), F.fit_moments(x_prev, x, np.ones(3000))
+    for name in ("W", "c", "u", "C", "G", "qq", "n_eff", "coord_scale"):
+        np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-12, atol=1e-12, err_msg=name)

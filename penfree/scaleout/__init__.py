@@ -1,0 +1,37 @@
+"""Scale-out on Dask: many recordings, or one long recording, without a job script.
+
+`penfree deform`, `verify` and `report` accept several inputs (files, directories,
+globs); with several inputs, ``--workers N`` or ``--scheduler ADDRESS`` the work runs on
+`dask.distributed` (an optional extra: ``pip install 'penfree[dask]'``).
+
+Partitioning. ``deform`` and ``verify`` split each file into ranges of steps; a step `s`
+reads frames ``s - 1``, ``s`` and ``s + 1`` only, so ranges of steps need overlapping
+frames and nothing else: a ``deform`` range reads just the frames ``lo - 1 .. hi`` of
+its file (HDF5 ``frame_window``) and runs the library on them, its frame numbers
+shifted back to the file's; ``verify`` tasks read their file and select their steps
+with a frame slice. A file that is one task is
+deformed and written (atomically) by that task on its worker. Each ``deform`` range of a
+split file writes a partial result beside the output (``.<stem>.parts/``, each part
+written under a temporary name and renamed); one more task, which Dask runs once all
+ranges of the file are done, merges them in frame order into the layout of a serial run,
+writes it atomically and removes the parts. Only file names and the small per-step
+tables travel back to the driver; results are compressed and written by the workers in
+parallel. ``report`` runs one task per file (statistics and ladder are per file).
+
+Results are those of a serial run, bit for bit: every step is computed by the same
+code from the same frames, and the per-step tables are merged in frame order (the
+selection table's candidate columns in order of first appearance, as a serial run
+orders them). One progress callback counts finished tasks; a failed task names its
+file and frame range.
+"""
+
+from .cluster import DASK_MISSING, client, gather, n_workers_of, require_dask, run_tasks
+from .deform import deform_file_task, deform_many, deform_task, merge_task
+from .plan import (DIRECTORY_PATTERNS, MIN_STEPS_PER_TASK, TASKS_PER_WORKER, Task, expand_inputs, is_scaleout,
+                   output_paths, plan)
+from .verify_report import report_many, report_task, verify_many, verify_task
+
+__all__ = ["DASK_MISSING", "DIRECTORY_PATTERNS", "MIN_STEPS_PER_TASK", "TASKS_PER_WORKER", "Task", "client",
+           "deform_file_task", "deform_many", "deform_task", "expand_inputs", "gather", "is_scaleout", "merge_task",
+           "n_workers_of", "output_paths", "plan", "report_many", "report_task", "require_dask", "run_tasks",
+           "verify_many", "verify_task"]

@@ -1,0 +1,94 @@
+"""The Dask side of the scale-out path: the client (a local cluster or a scheduler's), and
+one loop that collects task results in order, counts progress and names a failed task."""
+
+from __future__ import annotations
+
+import os
+import uuid
+from contextlib import contextmanager
+
+from ..errors import InputError
+
+DASK_MISSING = ("several inputs, --workers and --scheduler need Dask, which is not installed; "
+                "install it with: pip install 'penfree[dask]'")
+
+
+def require_dask():
+    """Import `dask.distributed`; InputError (exit 2) with the install line when absent."""
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        raise InputError(DASK_MISSING) from None
+    return distributed
+
+
+@contextmanager
+def client(workers=None, scheduler=None):
+    """A `distributed.Client`: on `scheduler`, else on a local cluster of `workers` processes."""
+    distributed = require_dask()
+    if scheduler is not None:
+        try:
+            c = distributed.Client(scheduler, timeout="10s")
+        except (OSError, TimeoutError) as exc:
+            raise InputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+        try:
+            yield c
+        finally:
+            c.close()
+        return
+    n = workers or os.cpu_count() or 1
+    # One thread per worker process: workers run Numba kernels themselves.
+    with distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                  silence_logs=40) as cluster, distributed.Client(cluster) as c:
+        yield c
+
+
+def n_workers_of(c) -> int:
+    return max(1, len(c.scheduler_info().get("workers", {})))
+
+
+def run_tasks(c, fn, tasks, args=(), progress=None) -> list:
+    """Run ``fn(task, *args)`` for every task on client `c`; results in task order.
+
+    A failed task raises InputError naming its file and range (the others are cancelled).
+    """
+    futures = [c.submit(fn, t, *args, pure=False, key=new_key()) for t in tasks]
+    return gather(futures, [t.label() for t in tasks], progress)
+
+
+def new_key() -> str:
+    return f"penfree-{uuid.uuid4().hex}"
+
+
+def gather(futures, labels, progress=None) -> list:
+    """Results of `futures` in order, calling `progress` once per finished one.
+
+    A failure raises InputError naming the `labels` entry of the future that failed;
+    the others are cancelled.
+    """
+    from distributed import as_completed
+
+    index = {f.key: k for k, f in enumerate(futures)}
+    results = [None] * len(futures)
+    try:
+        for fut in as_completed(futures):
+            k = index[fut.key]
+            try:
+                results[k] = fut.result()
+            except InputError as exc:
+                raise InputError(f"{labels[k]}: {exc}") from None
+            except Exception as exc:  # a worker failure: name the task, no traceback
+                raise InputError(f"task failed on {labels[k]}: {type(exc).__name__}: {exc}") from None
+            if progress is not None:
+                progress()
+    finally:
+        for f in futures:
+            f.cancel()
+    return results
+
+
+def set_threads(threads):
+    if threads:
+        import numba
+
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
