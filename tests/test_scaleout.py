@@ -238,3 +238,21 @@ def test_range_task_reads_only_its_frames_and_equals_the_full_read(tmp_path, mon
     for k, v in ref.steps.items():
         if k != "time_fit_s":
             assert np.array_equal(steps[k], v, equal_nan=v.dtype.kind == "f"), k
+
+
+def test_stopped_local_run_leaves_no_temporary(inputs, tmp_path, monkeypatch):
+    """A worker stopped mid-write (local cluster closed by a failure or Ctrl-C) leaves no .pf*.tmp."""
+    from penfree.scaleout import deform as sdeform
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / ".pfkeepme01.tmp").write_text("someone else's, there before the run")
+
+    def stopped(**kw):
+        (out / ".pfstopped01.tmp").write_text("half a result")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sdeform, "_run", lambda **kw: stopped(**kw))
+    with pytest.raises(KeyboardInterrupt):
+        sdeform.deform_many([str(inputs)], str(out), options={"frames": None}, workers=1)
+    assert sorted(p.name for p in out.iterdir()) == [".pfkeepme01.tmp"]

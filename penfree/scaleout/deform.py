@@ -109,9 +109,10 @@ def deform_many(specs, outdir, *, options, overwrite=False, with_stats=False, wo
     -----
     A file that is one task is deformed and written by that task; a file split into
     frame ranges is written by one more task, which merges the ranges' partial
-    results once they are done. Every result is written atomically; if a task fails,
-    the results of the files already finished stay (each complete), no partial
-    result stays.
+    results once they are done. Every result is written atomically; if a task fails
+    or the run is interrupted, the results of the files already finished stay (each
+    complete); no partial result stays, and on a local cluster no temporary file of a
+    result that a stopped worker was writing.
     """
     from ..formats.atomic import check_output
 
@@ -122,7 +123,40 @@ def deform_many(specs, outdir, *, options, overwrite=False, with_stats=False, wo
     for o in outs:
         check_output(o, overwrite, inputs=inputs)
     threads = threads or 1
-    with client(workers, scheduler) as c:
+    before = _temporaries(outdir)
+    done = False
+    try:
+        results, index, final = _run(c_args=(workers, scheduler), outdir=outdir, inputs=inputs, outs=outs, options=options,
+                                     with_stats=with_stats, threads=threads, overwrite=overwrite,
+                                     progress=progress, on_total=on_total)
+        done = True
+    finally:
+        if not done and scheduler is None:
+            # The local cluster is closed, its workers are gone: a result a worker was
+            # writing when the run stopped (failure, Ctrl-C) left its temporary file.
+            for name in _temporaries(outdir) - before:
+                _remove(os.path.join(outdir, name))
+    return [(path, out, results[index[f.key]]) for path, out, f in zip(inputs, outs, final)]
+
+
+def _temporaries(outdir) -> set:
+    from ..formats.atomic import TMP_PREFIX, TMP_SUFFIX
+
+    if not os.path.isdir(outdir):
+        return set()
+    return {n for n in os.listdir(outdir) if n.startswith(TMP_PREFIX) and n.endswith(TMP_SUFFIX)}
+
+
+def _remove(path):
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+
+
+def _run(c_args, outdir, inputs, outs, options, with_stats, threads, overwrite, progress, on_total):
+    """Submit and gather the tasks of `deform_many`; ``(results, index, final)``."""
+    with client(*c_args) as c:
         tasks = plan(inputs, n_workers_of(c), options.get("frames"))
         os.makedirs(outdir, exist_ok=True)
         futures, labels, final = [], [], []
@@ -148,8 +182,7 @@ def deform_many(specs, outdir, *, options, overwrite=False, with_stats=False, wo
         finally:  # partial results never outlive the run, merged or not
             for o in outs:
                 shutil.rmtree(parts_dir(o), ignore_errors=True)
-    index = {f.key: k for k, f in enumerate(futures)}
-    return [(path, out, results[index[f.key]]) for path, out, f in zip(inputs, outs, final)]
+    return results, {f.key: k for k, f in enumerate(futures)}, final
 
 
 def _options_of(options, seq, frames):
