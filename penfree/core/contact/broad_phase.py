@@ -62,11 +62,21 @@ _DENSE_FACTOR = 8
 #: 1 is ~1.5x slower: more cells per box).
 _CELL_FACTOR = 2.0
 
-MODE_COUNT, MODE_FILL, MODE_MIN = 0, 1, 2
+MODE_COUNT, MODE_FILL, MODE_MIN, MODE_GLOBAL_MIN = 0, 1, 2, 3
 
 #: Query rows below which the row passes run serially: a row costs ~0.3-1 us (a few
 #: cells scanned), so 2048 rows are ~1 ms of serial work.
 _PARALLEL_MIN_ROWS = 2048
+#: Row chunks of the one-pass pair enumeration (each fills its own buffer slots),
+#: at least this many rows each; rows sampled to size the buffer.
+_PAIR_CHUNKS = 256
+_PAIR_CHUNK_MIN_ROWS = 256
+_SAMPLE_ROWS = 512
+#: Buffer slots per chunk: the sampled pairs per row times this, plus a pad.
+_CAP_SLACK = 1.25
+_CAP_PAD = 64
+#: Row chunks of `min_pair_sq` (each keeps its own minimum; min is exact).
+_GLOBAL_MIN_CHUNKS = 64
 
 
 @njit(cache=True)
@@ -108,49 +118,68 @@ def _bucket(key, bits):
 
 
 @njit(cache=True)
-def _cell_ranges(lo, hi, origin, h, clo, chi, ncell):
+def _cell_ranges(lo, hi, origin, h, clo, chi, ncell, big_cells):
+    """Cell ranges and cell counts of the boxes; returns (largest chi per axis, number
+    of boxes covering more than `big_cells` cells)."""
+    top = np.zeros(3, dtype=np.int64)
+    n_big = 0
     for i in range(lo.shape[0]):
         n = np.int64(1)
         for a in range(3):
             clo[i, a] = _cell(lo[i, a], origin[a], h[a])
             chi[i, a] = _cell(hi[i, a], origin[a], h[a])
             n *= chi[i, a] - clo[i, a] + 1
+            top[a] = max(top[a], chi[i, a])
         ncell[i] = n
+        n_big += n > big_cells
+    return top, n_big
 
 
 @njit(cache=True)
 def _build_grid(clo, chi, small, dims, bits, nb, lo, hi):
+    # Counting sort of the (box, cell) entries by bucket; serial (a parallel scatter
+    # would need atomics), so the loops keep everything in locals.
     count = np.zeros(nb + 1, dtype=np.int64)
+    d0 = dims[0]
+    d01 = dims[0] * dims[1]
     for j in range(clo.shape[0]):
         if not small[j]:
             continue
         for z in range(clo[j, 2], chi[j, 2] + 1):
             for y in range(clo[j, 1], chi[j, 1] + 1):
+                base = d0 * y + d01 * z
                 for x in range(clo[j, 0], chi[j, 0] + 1):
-                    key = x + dims[0] * (y + dims[1] * z)
-                    count[_bucket(key, bits) + 1] += 1
+                    count[_bucket(base + x, bits) + 1] += 1
     for b in range(nb):
         count[b + 1] += count[b]
     fill = count[:-1].copy()
-    ent_key = np.empty(count[nb], dtype=np.int64)
-    ent_id = np.empty(count[nb], dtype=np.int64)
+    m = count[nb]
+    ent_key = np.empty(m, dtype=np.int64)
+    ent_id = np.empty(m, dtype=np.int64)
     # A copy of each box in entry order: the query scans entries of a cell
-    # sequentially instead of gathering boxes by index.
-    ent_box = np.empty((count[nb], 6))
+    # sequentially instead of gathering boxes by index (measured 1.5-2x faster).
+    ent_box = np.empty((m, 6))
     for j in range(clo.shape[0]):
         if not small[j]:
             continue
+        l0, l1, l2 = lo[j, 0], lo[j, 1], lo[j, 2]
+        h0, h1, h2 = hi[j, 0], hi[j, 1], hi[j, 2]
         for z in range(clo[j, 2], chi[j, 2] + 1):
             for y in range(clo[j, 1], chi[j, 1] + 1):
+                base = d0 * y + d01 * z
                 for x in range(clo[j, 0], chi[j, 0] + 1):
-                    key = x + dims[0] * (y + dims[1] * z)
+                    key = base + x
                     b = _bucket(key, bits)
-                    ent_key[fill[b]] = key
-                    ent_id[fill[b]] = j
-                    for a in range(3):
-                        ent_box[fill[b], a] = lo[j, a]
-                        ent_box[fill[b], 3 + a] = hi[j, a]
-                    fill[b] += 1
+                    f = fill[b]
+                    fill[b] = f + 1
+                    ent_key[f] = key
+                    ent_id[f] = j
+                    ent_box[f, 0] = l0
+                    ent_box[f, 1] = l1
+                    ent_box[f, 2] = l2
+                    ent_box[f, 3] = h0
+                    ent_box[f, 4] = h1
+                    ent_box[f, 5] = h2
     return count, ent_key, ent_id, ent_box
 
 
@@ -183,10 +212,15 @@ def _pair_sq(V, TA, i, TB, j):
 
 
 @njit(cache=True)
-def _record(mode, i, j, TA, TB, J, pos, V, dmin):
+def _record(mode, i, j, TA, TB, J, pos, lim, V, dmin):
     # Not inlined: only hits get here, and the scan loop stays small.
     if mode == MODE_FILL:
-        J[pos] = j
+        if pos < lim:  # beyond `lim` a full chunk only counts (see _pairs_pass)
+            J[pos] = j
+    elif mode == MODE_GLOBAL_MIN:
+        d = _pair_sq(V, TA, i, TB, j)
+        if d < dmin[0]:
+            dmin[0] = d
     elif mode == MODE_MIN:
         d = _pair_sq(V, TA, i, TB, j)
         for a in range(TA.shape[1]):
@@ -202,11 +236,13 @@ def _record(mode, i, j, TA, TB, J, pos, V, dmin):
 @njit(cache=True)
 def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
                loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box, bigB,
-               J, pos, V, dmin):
+               J, pos, lim, V, dmin):
     """Visit the partners j of row i; return how many there are.
 
-    MODE_COUNT only counts; MODE_FILL writes the partners j into J from `pos` on;
-    MODE_MIN folds the squared pair distance into `dmin` (per vertex).
+    MODE_COUNT only counts; MODE_FILL writes the partners j into J from `pos` on
+    (below `lim`; the count goes on beyond it);
+    MODE_MIN folds the squared pair distance into `dmin` (per vertex), MODE_GLOBAL_MIN
+    into ``dmin[0]``.
     """
     n = np.int64(0)
     if not smallA[i]:
@@ -214,7 +250,7 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
         for j in range(j0, loB.shape[0]):
             if _overlap(loA, hiA, i, loB, hiB, j) and not _adjacent(TA, i, TB, j):
                 if mode != MODE_COUNT:
-                    _record(mode, i, j, TA, TB, J, pos + n, V, dmin)
+                    _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin)
                 n += 1
         return n
     lx, ly, lz = loA[i, 0], loA[i, 1], loA[i, 2]
@@ -242,7 +278,7 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
                     if _adjacent(TA, i, TB, j):
                         continue
                     if mode != MODE_COUNT:
-                        _record(mode, i, j, TA, TB, J, pos + n, V, dmin)
+                        _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin)
                     n += 1
     for k in range(bigB.shape[0]):
         j = bigB[k]
@@ -250,33 +286,43 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
             continue
         if _overlap(loA, hiA, i, loB, hiB, j) and not _adjacent(TA, i, TB, j):
             if mode != MODE_COUNT:
-                _record(mode, i, j, TA, TB, J, pos + n, V, dmin)
+                _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin)
             n += 1
     return n
 
 
-def _count_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                origin, h, dims, bits, boff, ent_key, ent_id, ent_box, bigB, counts):
-    J = np.empty(0, dtype=np.int64)
+def _fill_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
+                    origin, h, dims, bits, boff, ent_key, ent_id, ent_box, bigB,
+                    starts, todo, bstart, blim, counts, J, full):
+    """One pass over the rows of the chunks marked in `todo`, filling and counting.
+
+    Chunk c owns rows [starts[c], starts[c + 1]) and the slots [bstart[c], blim[c])
+    of J, where it writes each row's partners (sorted) one row after another and
+    each row's count into `counts`. When its slots run out it only counts from
+    there on and sets full[c]: the caller refills it at exact offsets. A chunk
+    writes only its own slots, so the bits do not depend on the threads.
+    """
     V = np.empty((0, 3))
     dmin = np.empty(0)
-    for i in prange(loA.shape[0]):
-        counts[i] = _visit_row(MODE_COUNT, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
-                               loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box,
-                               bigB, J, 0, V, dmin)
-
-
-def _fill_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-               origin, h, dims, bits, boff, ent_key, ent_id, ent_box, bigB, offsets, I, J):
-    V = np.empty((0, 3))
-    dmin = np.empty(0)
-    for i in prange(loA.shape[0]):
-        pos = offsets[i]
-        n = _visit_row(MODE_FILL, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
-                       loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box,
-                       bigB, J, pos, V, dmin)
-        I[pos:pos + n] = i
-        _sort_segment(J, pos, pos + n)
+    for c in prange(starts.shape[0] - 1):
+        if not todo[c]:
+            continue
+        pos = bstart[c]
+        lim = blim[c]
+        over = False
+        for i in range(starts[c], starts[c + 1]):
+            mode = MODE_COUNT if over else MODE_FILL
+            n = _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
+                           loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box,
+                           bigB, J, pos, lim, V, dmin)
+            counts[i] = n
+            if not over:
+                if pos + n > lim:
+                    over = True
+                else:
+                    _sort_segment(J, pos, pos + n)
+                    pos += n
+        full[c] = over
 
 
 @njit(cache=True, inline="always")
@@ -296,7 +342,7 @@ def _sort_segment(J, a, b):
 
 
 def _min_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-              origin, h, dims, bits, boff, ent_key, ent_id, ent_box, bigB, V, partial):
+              origin, h, dims, bits, boff, ent_key, ent_id, ent_box, bigB, V, partial, mode):
     # Chunk c owns rows [c m / C, (c + 1) m / C) and writes only partial[c]:
     # no shared writes; min is exact, so the result is thread-count independent.
     J = np.empty(0, dtype=np.int64)
@@ -304,16 +350,15 @@ def _min_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
     m = loA.shape[0]
     for c in prange(n_chunks):
         for i in range(c * m // n_chunks, (c + 1) * m // n_chunks):
-            _visit_row(MODE_MIN, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
+            _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
                        loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box,
-                       bigB, J, 0, V, partial[c])
+                       bigB, J, 0, 0, V, partial[c])
 
 
 # Serial and parallel builds of the row passes (each row / chunk writes only its own
 # slots, so both give the same bits), chosen per call by the number of rows: a small
 # query never waits for a descheduled thread (penfree.core.parallel).
-_count_rows = parallel_kernel(_count_rows_py, "_bp_count_rows", _PARALLEL_MIN_ROWS)
-_fill_rows = parallel_kernel(_fill_rows_py, "_bp_fill_rows", _PARALLEL_MIN_ROWS)
+_fill_chunks = parallel_kernel(_fill_chunks_py, "_bp_fill_chunks", _PARALLEL_MIN_ROWS)
 _min_rows = parallel_kernel(_min_rows_py, "_bp_min_rows", _PARALLEL_MIN_ROWS)
 
 
@@ -337,6 +382,69 @@ def _median_extents(ext):
     sample = ext[::step]
     k = sample.shape[0] // 2
     return np.array([np.partition(sample[:, a], k)[k] for a in range(3)])
+
+
+@njit(cache=True)
+def _sample_counts(args_rows, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
+                   origin, h, dims, bits, boff, ent_key, ent_id, ent_box, bigB):
+    J = np.empty(0, dtype=np.int64)
+    V = np.empty((0, 3))
+    dmin = np.empty(0)
+    total = 0
+    for i in args_rows:
+        total += _visit_row(MODE_COUNT, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
+                            loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box,
+                            bigB, J, 0, 0, V, dmin)
+    return total
+
+
+def _gather_chunks_py(J_buf, bstart, J_buf2, bstart2, starts, counts, offsets, full, P):
+    # Chunk c copies its rows' partners (from the first pass's buffer, or from the
+    # refill's when it overflowed) to rows offsets[i].. of P: disjoint writes.
+    for c in prange(starts.shape[0] - 1):
+        src = J_buf2 if full[c] else J_buf
+        k = bstart2[c] if full[c] else bstart[c]
+        for i in range(starts[c], starts[c + 1]):
+            for q in range(offsets[i], offsets[i + 1]):
+                P[q, 0] = i
+                P[q, 1] = src[k]
+                k += 1
+
+
+_gather_chunks = parallel_kernel(_gather_chunks_py, "_bp_gather_chunks")
+
+
+def _pairs_pass(args, n):
+    """(K, 2) pairs (i, j) in row order, in one pass over the rows (see `_Plan.pairs`)."""
+    n_chunks = max(1, min(_PAIR_CHUNKS, n // _PAIR_CHUNK_MIN_ROWS))
+    starts = (np.arange(n_chunks + 1, dtype=np.int64) * n) // n_chunks
+    # Capacity from a sample of rows (a stride over all of them), with slack; a chunk
+    # that still runs out is refilled at exact offsets, so the guess only costs time.
+    step = max(1, n // _SAMPLE_ROWS)
+    sample = np.arange(0, n, step, dtype=np.int64)
+    per_row = _sample_counts(sample, *args) / sample.size
+    caps = np.ceil((starts[1:] - starts[:-1]) * (_CAP_SLACK * per_row + 0.5 * _CAP_SLACK)).astype(np.int64) + _CAP_PAD
+    bstart = np.zeros(n_chunks + 1, dtype=np.int64)
+    np.cumsum(caps, out=bstart[1:])
+    counts = np.empty(n, dtype=np.int64)
+    full = np.zeros(n_chunks, dtype=np.bool_)
+    J_buf = np.empty(bstart[-1], dtype=np.int64)
+    _fill_chunks(n, *args, starts, np.ones(n_chunks, dtype=np.bool_), bstart[:-1], bstart[1:],
+                 counts, J_buf, full)
+    offsets = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(counts, out=offsets[1:])
+    bstart2 = np.zeros(n_chunks + 1, dtype=np.int64)
+    if full.any():
+        need = np.where(full, offsets[starts[1:]] - offsets[starts[:-1]], 0)
+        np.cumsum(need, out=bstart2[1:])
+        J_buf2 = np.empty(bstart2[-1], dtype=np.int64)
+        _fill_chunks(n, *args, starts, full.copy(), bstart2[:-1], bstart2[1:], counts, J_buf2,
+                     np.zeros(n_chunks, dtype=np.bool_))
+    else:
+        J_buf2 = np.empty(0, dtype=np.int64)
+    P = np.empty((offsets[-1], 2), dtype=np.int64)
+    _gather_chunks(offsets[-1], J_buf, bstart, J_buf2, bstart2, starts, counts, offsets, full, P)
+    return P
 
 
 class _Plan:
@@ -367,14 +475,15 @@ class _Plan:
         h = np.maximum(h, spans / (_MAX_DIM - 2))
         budget = _BIG_WORK_PER_BOX * (nA + nB)
         while True:
-            cloA, chiA, ncA = self._ranges(loA, hiA, origin, h)
-            cloB, chiB, ncB = (cloA, chiA, ncA) if self_query else self._ranges(loB, hiB, origin, h)
-            smallA, smallB = ncA <= _BIG_CELLS, ncB <= _BIG_CELLS
-            work = (nA - smallA.sum()) * nB + (nB - smallB.sum()) * nA
+            cloA, chiA, ncA, topA, n_bigA = self._ranges(loA, hiA, origin, h)
+            cloB, chiB, ncB, topB, n_bigB = ((cloA, chiA, ncA, topA, n_bigA) if self_query
+                                             else self._ranges(loB, hiB, origin, h))
+            work = n_bigA * nB + n_bigB * nA
             if work <= budget or np.all(h >= spans):
                 break
             h = 2.0 * h
-        dims = np.maximum(chiA.max(axis=0), chiB.max(axis=0)) + 1
+        smallA, smallB = ncA <= _BIG_CELLS, ncB <= _BIG_CELLS
+        dims = np.maximum(topA, topB) + 1
         entries = int(ncB[smallB].sum())
         n_dense = int(dims[0]) * int(dims[1]) * int(dims[2])
         if n_dense <= _DENSE_FACTOR * entries + 4096:
@@ -393,8 +502,8 @@ class _Plan:
         clo = np.empty(lo.shape, dtype=np.int64)
         chi = np.empty(lo.shape, dtype=np.int64)
         ncell = np.empty(lo.shape[0], dtype=np.int64)
-        _cell_ranges(lo, hi, origin, h, clo, chi, ncell)
-        return clo, chi, ncell
+        top, n_big = _cell_ranges(lo, hi, origin, h, clo, chi, ncell, _BIG_CELLS)
+        return clo, chi, ncell, top, int(n_big)
 
     def _args(self):
         return (self.self_query, self.loA, self.hiA, self.TA, self.cloA, self.chiA, self.smallA,
@@ -402,26 +511,24 @@ class _Plan:
                 self.boff, self.ent_key, self.ent_id, self.ent_box, self.bigB)
 
     def pairs(self):
-        """(K, 2) int64 rows (i, j), sorted lexicographically."""
+        """(K, 2) int64 rows (i, j), sorted lexicographically.
+
+        One pass over the rows in chunks, each filling its own slots of a buffer
+        sized from a sample of the rows (`_pairs_pass`); chunks that overflow are
+        refilled at exact offsets. Pairs come out in row order, whatever the chunks.
+        """
         if self.empty:
             return np.zeros((0, 2), dtype=np.int64)
-        counts = np.empty(self.loA.shape[0], dtype=np.int64)
-        n = self.loA.shape[0]
-        _count_rows(n, *self._args(), counts)
-        offsets = np.zeros(counts.shape[0] + 1, dtype=np.int64)
-        np.cumsum(counts, out=offsets[1:])
-        I = np.empty(offsets[-1], dtype=np.int64)
-        J = np.empty(offsets[-1], dtype=np.int64)
-        _fill_rows(n, *self._args(), offsets, I, J)
-        return np.ascontiguousarray(np.stack([I, J], axis=1))
+        return _pairs_pass(self._args(), self.loA.shape[0])
 
-    def min_sq_into(self, V, partial):
+    def min_sq_into(self, V, partial, mode=MODE_MIN):
         """Fold squared pair distances into `partial` (C, N): per-vertex minima.
 
         Chunk c of the rows writes only partial[c]; reduce with min afterwards.
+        With ``MODE_GLOBAL_MIN`` `partial` is (C, 1) and gets each chunk's smallest.
         """
         if not self.empty:
-            _min_rows(self.loA.shape[0], *self._args(), V, partial)
+            _min_rows(self.loA.shape[0], *self._args(), V, partial, mode)
 
 
 # --- public functions ---------------------------------------------------------
@@ -564,3 +671,28 @@ def fold_min_sq(x, TA, TB, inflation, partial, self_query):
     loA, hiA = _box_arrays(x, x, TA, inflation)
     loB, hiB = (loA, hiA) if self_query else _box_arrays(x, x, TB, inflation)
     _Plan(loA, hiA, TA, loB, hiB, TB, self_query).min_sq_into(x, partial)
+
+
+def min_pair_sq(x, TA, TB, inflation, self_query) -> float:
+    """Smallest squared distance over the pairs whose static boxes, inflated, overlap.
+
+    Parameters
+    ----------
+    x : (N, 3) float64, C-contiguous
+    TA, TB : (M, k) int64
+        Primitives as in `fold_min_sq` (with `self_query` `TB` must be `TA`).
+    inflation : float >= 0
+        Box inflation: every pair within ``2 * inflation`` is visited.
+
+    Returns
+    -------
+    float
+        The smallest computed squared distance of a visited pair (distance kernels of
+        `penfree.core.contact.distance`), inf when no boxes overlap. One pass, no pair
+        stored: the "is anything within g" question of the certificate path.
+    """
+    loA, hiA = _box_arrays(x, x, TA, inflation)
+    loB, hiB = (loA, hiA) if self_query else _box_arrays(x, x, TB, inflation)
+    partial = np.full((_GLOBAL_MIN_CHUNKS, 1), np.inf)
+    _Plan(loA, hiA, TA, loB, hiB, TB, self_query).min_sq_into(x, partial, MODE_GLOBAL_MIN)
+    return float(partial.min())

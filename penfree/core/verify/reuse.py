@@ -25,6 +25,13 @@ _KEEP_REL = 1e-9
 _PAD_REL = 1e-12
 
 
+def apart_sq(g, x) -> float:
+    """Squared distance above which a computed pair distance proves the pair more than
+    `g` apart at `x` (``(g (1 + _KEEP_REL) + _PAD_REL |x|max)^2``)."""
+    mag = float(np.abs(x).max()) if x.size else 0.0
+    return (g * (1.0 + _KEEP_REL) + _PAD_REL * mag) ** 2
+
+
 def result_lists(scene_E, scene_F):
     """A `NeighbourList` for the start states of a result's steps, with edge-face pairs."""
     return NeighbourList(scene_E, scene_F, edge_face=True)
@@ -102,8 +109,7 @@ def listed_start_pass(col, nl, x, g):
     if len(F):
         listed_edge_face(col, x, E, F, pairs["ef"])
     d_ee, d_vf = nl.pair_sq(x)
-    mag = float(np.abs(x).max()) if x.size else 0.0
-    keep = (g * (1.0 + _KEEP_REL) + _PAD_REL * mag) ** 2
+    keep = apart_sq(g, x)
     ee = pairs["ee"][d_ee <= keep]
     if len(ee):
         _narrow(col, "ee", ee, E[ee].reshape(-1, 4), x, x, "ee", g)
