@@ -65,10 +65,10 @@ from ..topology import as_positions, as_topology, referenced_vertices, scene_edg
 #: Skins tried by the cost model, relative to the query radius.
 SKIN_CANDIDATES_REL = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
 #: Cost of a build and of a query answered from the list, in fresh queries at the
-#: build radius (the build enumerates and stores the pairs in two passes; a listed
-#: query only evaluates distances): measured 1.5-2.5x and 0.12-0.2x on the 64K
-#: cloth and yarn scenes (benchmarks/bench_neighbours.py).
-BUILD_COST = 2.0
+#: build radius (the build enumerates and stores the pairs in one pass; a listed
+#: query only evaluates distances): measured 1.0-1.2x and 0.16-0.17x on the 64K
+#: cloth and yarn scenes (1.5-2.5x with the former two-pass build).
+BUILD_COST = 1.2
 LISTED_COST = 0.2
 #: The cost model counts a list's life up to this many queries.
 SKIN_LIFE_CAP = 32.0

@@ -16,6 +16,7 @@ from numba import njit
 
 from ..contact.ccd import ccd_indexed
 from ..contact.neighbours import NeighbourList
+from ..contact.orient import segment_may_meet_triangle
 from .path import _BLOCK, _narrow, _share_no_vertex
 
 #: A listed pair is dropped before the CCD only when its computed distance exceeds
@@ -39,7 +40,8 @@ def result_lists(scene_E, scene_F):
 
 @njit(cache=True)
 def _boxes_touch(x, E, F, ef):
-    # The fresh pass's broad phase: exact (uninflated) boxes of edge and face at x.
+    # The fresh pass's broad phase: exact (uninflated) boxes of edge and face at x,
+    # and its certified float filter (a pair it clears provably misses).
     out = np.empty(ef.shape[0], dtype=np.bool_)
     for k in range(ef.shape[0]):
         e, f = ef[k, 0], ef[k, 1]
@@ -52,6 +54,8 @@ def _boxes_touch(x, E, F, ef):
             if elo > fhi or flo > ehi:
                 ok = False
                 break
+        if ok:
+            ok = segment_may_meet_triangle(x[E[e, 0]], x[E[e, 1]], x[F[f, 0]], x[F[f, 1]], x[F[f, 2]])
         out[k] = ok
     return out
 
@@ -59,8 +63,9 @@ def _boxes_touch(x, E, F, ef):
 def listed_edge_face(col, x, E, F, ef):
     """`verify._edge_face` (kind ``"ef"``) over the listed edge-face pairs `ef` (K, 2).
 
-    The listed pairs whose exact boxes at `x` touch are the fresh pass's candidates
-    (an edge meeting a face has touching boxes), tested by the same exact test.
+    The listed pairs whose exact boxes at `x` touch and which the float filter of
+    `penfree.core.contact.orient` cannot clear are the fresh pass's candidates (an
+    edge meeting a face has touching boxes), tested by the same exact test.
     """
     if not len(ef):
         return
