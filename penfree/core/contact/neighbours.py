@@ -66,9 +66,11 @@ from ..topology import as_positions, as_topology, referenced_vertices, scene_edg
 SKIN_CANDIDATES_REL = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
 #: Cost of a build and of a query answered from the list, in fresh queries at the
 #: build radius (the build enumerates and stores the pairs in one pass; a listed
-#: query only evaluates distances): measured 1.0-1.2x and 0.16-0.17x on the 64K
-#: cloth and yarn scenes (1.5-2.5x with the former two-pass build).
-BUILD_COST = 1.2
+#: query only evaluates distances): measured 1.0-1.2x (skin 0) and 0.16-0.17x on the
+#: 64K cloth and yarn scenes, but builds at larger skins cost more than the pair
+#: growth predicts (5.6x a fresh query at skin r_q on the yarn); with 1.2 the model
+#: kept lists on the cloth reference and lost (0.82x), with 2.0 it answers fresh.
+BUILD_COST = 2.0
 LISTED_COST = 0.2
 #: The cost model counts a list's life up to this many queries.
 SKIN_LIFE_CAP = 32.0
