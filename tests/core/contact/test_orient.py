@@ -66,10 +66,8 @@ def test_segment_filter_never_clears_a_meeting_pair(rng):
     assert cleared.sum() > 0.3 * (~meet).sum()  # and it clears most of the misses
 
 
-def test_edge_face_candidates_are_a_superset_of_the_intersections(rng):
-    # Two crumpled sheets pushed through each other: every intersecting (edge, face)
-    # pair sharing no vertex is a candidate, and candidates have overlapping boxes.
-    n = 9
+def _crossing_sheets(rng, n=9):
+    """Two crumpled sheets pushed through each other: (V, E, F)."""
     u = np.linspace(0, 1, n)
     X, Y = np.meshgrid(u, u, indexing="ij")
     V0 = np.stack([X, Y, 0.05 * np.sin(7 * X + 3 * Y)], -1).reshape(-1, 3)
@@ -79,7 +77,13 @@ def test_edge_face_candidates_are_a_superset_of_the_intersections(rng):
     F0 = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
     V = np.concatenate([V0, V1]) + rng.normal(scale=1e-4, size=(2 * n * n, 3))
     F = np.concatenate([F0, F0 + n * n]).astype(np.int64)
-    E = edges_from_faces(F).astype(np.int64)
+    return V, edges_from_faces(F).astype(np.int64), F
+
+
+def test_edge_face_candidates_are_a_superset_of_the_intersections(rng):
+    # Every intersecting (edge, face) pair sharing no vertex is a candidate, and
+    # candidates have overlapping boxes.
+    V, E, F = _crossing_sheets(rng)
     cand = edge_face_candidates(V, E, F)
     k, f = np.meshgrid(np.arange(len(E)), np.arange(len(F)), indexing="ij")
     k, f = k.ravel(), f.ravel()
@@ -94,3 +98,23 @@ def test_edge_face_candidates_are_a_superset_of_the_intersections(rng):
     ck, cf = cand[:, 0], cand[:, 1]
     assert np.all((lo_e[ck] <= hi_f[cf]) & (lo_f[cf] <= hi_e[ck]))
     assert len(got) < len(k) // 10
+
+
+def test_edge_face_candidates_identical_for_one_and_two_threads(rng, monkeypatch):
+    import numba
+
+    from penfree.core.contact import broad_phase as bp
+
+    V, E, F = _crossing_sheets(rng, n=17)
+    for k in (bp._fill_chunks, bp._gather_chunks):
+        monkeypatch.setattr(k, "min_work", 0)
+    monkeypatch.setattr(bp, "_PAIR_CHUNK_MIN_ROWS", 16)  # many chunks on a small scene
+    out = []
+    try:
+        for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+            numba.set_num_threads(threads)
+            out.append(edge_face_candidates(V, E, F))
+    finally:
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    assert len(out[0]) > 10
+    np.testing.assert_array_equal(out[0], out[1])
