@@ -166,7 +166,8 @@ def _build_grid(clo, chi, small, dims, bits, nb, lo, hi):
         count[b + 1] += count[b]
     fill = count[:-1].copy()
     m = count[nb]
-    ent_key = np.empty(m, dtype=np.int64)
+    # Keys only for a hashed table: a dense one has one cell per bucket.
+    ent_key = np.empty(m if bits >= 0 else 0, dtype=np.int64)
     ent_id = np.empty(m, dtype=np.int64)
     # A copy of each box in entry order: the query scans entries of a cell
     # sequentially instead of gathering boxes by index (measured 1.5-2x faster).
@@ -184,7 +185,8 @@ def _build_grid(clo, chi, small, dims, bits, nb, lo, hi):
                     b = _bucket(key, bits)
                     f = fill[b]
                     fill[b] = f + 1
-                    ent_key[f] = key
+                    if bits >= 0:
+                        ent_key[f] = key
                     ent_id[f] = j
                     ent_box[f, 0] = l0
                     ent_box[f, 1] = l1
