@@ -6,6 +6,7 @@ that the public functions of the proximity stages share.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from ..errors import InputError
 
@@ -110,16 +111,50 @@ def edges_from_faces(F) -> np.ndarray:
     F = F.astype(np.int64, copy=False)
     if F.min() < 0:
         raise InputError(f"faces indices must be >= 0; got {int(F.min())}")
-    a = np.concatenate([F[:, 0], F[:, 1], F[:, 2]])
-    b = np.concatenate([F[:, 1], F[:, 2], F[:, 0]])
-    lo = np.minimum(a, b)
-    hi = np.maximum(a, b)
-    keep = lo != hi
-    lo, hi = lo[keep], hi[keep]
-    # One int64 key per edge: np.unique on a 1-D key is far faster than axis=0.
-    base = np.int64(hi.max()) + 1 if hi.size else np.int64(1)
-    key = np.unique(lo * base + hi)
-    return np.ascontiguousarray(np.stack([key // base, key % base], axis=1))
+    return _unique_face_edges(np.ascontiguousarray(F), int(F.max()) + 1)
+
+
+@njit(cache=True)
+def _unique_face_edges(F, n):
+    # Counting sort of the 3F half-edges (lo, hi) by lo, then per lo the few hi sorted
+    # (insertion) and deduplicated: O(F), rows sorted lexicographically. (np.unique
+    # on a 1-D key took 30-70 ms at 130K faces, a fifth of the certificate path.)
+    count = np.zeros(n + 1, dtype=np.int64)
+    for f in range(F.shape[0]):
+        for c in range(3):
+            a, b = F[f, c], F[f, (c + 1) % 3]
+            if a != b:
+                count[min(a, b) + 1] += 1
+    for v in range(n):
+        count[v + 1] += count[v]
+    fill = count[:-1].copy()
+    hi = np.empty(count[n], dtype=np.int64)
+    for f in range(F.shape[0]):
+        for c in range(3):
+            a, b = F[f, c], F[f, (c + 1) % 3]
+            if a != b:
+                lo = min(a, b)
+                hi[fill[lo]] = max(a, b)
+                fill[lo] += 1
+    out = np.empty((count[n], 2), dtype=np.int64)
+    m = 0
+    for v in range(n):
+        s, e = count[v], count[v + 1]
+        if e - s > 32:  # a high-degree vertex (a fan): no quadratic insertion sort
+            hi[s:e] = np.sort(hi[s:e])
+        for k in range(s + 1, e):
+            x = hi[k]
+            j = k - 1
+            while j >= s and hi[j] > x:
+                hi[j + 1] = hi[j]
+                j -= 1
+            hi[j + 1] = x
+        for k in range(s, e):
+            if k == s or hi[k] != hi[k - 1]:
+                out[m, 0] = v
+                out[m, 1] = hi[k]
+                m += 1
+    return out[:m].copy()
 
 
 def scene_edges(E, F) -> np.ndarray:

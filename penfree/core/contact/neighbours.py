@@ -65,9 +65,11 @@ from ..topology import as_positions, as_topology, referenced_vertices, scene_edg
 #: Skins tried by the cost model, relative to the query radius.
 SKIN_CANDIDATES_REL = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
 #: Cost of a build and of a query answered from the list, in fresh queries at the
-#: build radius (the build enumerates and stores the pairs in two passes; a listed
-#: query only evaluates distances): measured 1.5-2.5x and 0.12-0.2x on the 64K
-#: cloth and yarn scenes (benchmarks/bench_neighbours.py).
+#: build radius (the build enumerates and stores the pairs in one pass; a listed
+#: query only evaluates distances): measured 1.0-1.2x (skin 0) and 0.16-0.17x on the
+#: 64K cloth and yarn scenes, but builds at larger skins cost more than the pair
+#: growth predicts (5.6x a fresh query at skin r_q on the yarn); with 1.2 the model
+#: kept lists on the cloth reference and lost (0.82x), with 2.0 it answers fresh.
 BUILD_COST = 2.0
 LISTED_COST = 0.2
 #: The cost model counts a list's life up to this many queries.

@@ -11,10 +11,11 @@ import numpy as np
 
 from ...constants import DEFAULT_MAX_PAIRS, UNIT_ROUNDOFF, VERIFY_MARGIN_LADDER
 from ...errors import InputError
+from ..contact.broad_phase import min_pair_sq
 from ..fit.certificate import certify, fast_margin_bound
 from .gate import deviation_bound
-from .reuse import listed_start_pass
-from .path import _bodies, _Collector, _edge_face, _pairs_self, check_thickness
+from .reuse import apart_sq, listed_start_pass
+from .path import _bodies, _Collector, _edge_face, _inflation, _pairs_self, check_thickness
 from .result import VerifyResult
 
 
@@ -28,6 +29,22 @@ def _margin(A, need_positive):
         if certify(A, m):
             return m
     return None
+
+
+def _proven_apart(scene, g):
+    """True when every vertex-face and edge-edge pair of the start state is proven
+    more than `g` apart: one pass folding the computed distances of the pairs whose
+    boxes come within g (no pair stored, no CCD), each compared with `reuse.apart_sq`
+    (far above the distance kernels' rounding). False means "maybe within g": the
+    static CCD then decides, as before."""
+    x = scene.x_t0
+    infl = _inflation(g, x)
+    d2 = np.inf
+    if len(scene.E) > 1:
+        d2 = min_pair_sq(x, scene.E, scene.E, infl, True)
+    if len(scene.F) and len(scene.V):
+        d2 = min(d2, min_pair_sq(x, np.ascontiguousarray(scene.V[:, None]), scene.F, infl, False))
+    return d2 > apart_sq(g, x)
 
 
 def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0.0,
@@ -66,7 +83,8 @@ def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0
     m |p - q| - 2 delta. Hence, if every vertex-face and edge-edge pair is at
     least g = (thickness + 2 delta) / m apart at the start (proven by the static
     conservative CCD run with thickness g on all pairs whose boxes come within
-    g), no pair comes within thickness along the path. With thickness 0 and
+    g, or, first, by their computed distances exceeding g by far more than the
+    distance kernels' rounding), no pair comes within thickness along the path. With thickness 0 and
     delta 0, m = 0 suffices (M(t) nonsingular, start gaps > 0). Edge-face
     intersections at the start are checked as in `verify_step`. Obstacles
     are not moved by A: steps with obstacles always use the full CCD.
@@ -88,7 +106,8 @@ def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0
     if neighbours is None or not listed_start_pass(col, neighbours, scene.x_t0, g):
         if len(scene.F):
             _edge_face(col, "ef", scene.x_t0, scene.E, scene.F)
-        _pairs_self(col, scene, g, static=True)
+        if not col.kinds and not _proven_apart(scene, g):
+            _pairs_self(col, scene, g, static=True)
     if col.kinds:
         return None  # a start pair within g (maybe a real violation): full CCD decides
     sep = thickness if m == 0.0 else max(thickness, m * g / (1.0 + 1e-9) - 2.0 * delta)

@@ -27,6 +27,7 @@ Doing nothing (``x_def = x`` bit for bit) always passes and is not checked.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from ...constants import MARGIN_GAP_RADIUS_FACTOR, NEAR_FIRST_FACTOR, NEAR_SLACK_REL, UNIT_ROUNDOFF
 from ..fit.certificate import certify_map, fast_margin_bound
@@ -44,11 +45,31 @@ def deviation_bound(x, x_def, A, b) -> float:
     fl(A x + b) has per-component error <= gamma_4 (sum_j |A_ij x_j| + |b_i|)
     and the subtraction adds u |x_def - y|; 8 u covers both with room.
     """
-    y = x @ A.T + b
-    r = np.abs(x_def - y)
-    s = np.abs(x) @ np.abs(A).T + np.abs(b) + np.abs(x_def)
-    e = r + 8.0 * UNIT_ROUNDOFF * s
-    return float(np.sqrt((e * e).sum(axis=1)).max() * (1.0 + 8.0 * UNIT_ROUNDOFF)) if len(x) else 0.0
+    if not len(x):
+        return 0.0
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    x_def = np.ascontiguousarray(x_def, dtype=np.float64)
+    A = np.ascontiguousarray(A, dtype=np.float64)
+    b = np.ascontiguousarray(b, dtype=np.float64)
+    # One pass, no temporaries (the numpy form took ~10 ms at 64K vertices, most of the
+    # certificate path's non-proximity time); the bound holds for any evaluation order.
+    return float(np.sqrt(_max_dev_sq(x, x_def, A, b, 8.0 * UNIT_ROUNDOFF)) * (1.0 + 8.0 * UNIT_ROUNDOFF))
+
+
+@njit(cache=True)
+def _max_dev_sq(x, x_def, A, b, k):
+    m = 0.0
+    for v in range(x.shape[0]):
+        q = 0.0
+        for i in range(3):
+            y = A[i, 0] * x[v, 0] + A[i, 1] * x[v, 1] + A[i, 2] * x[v, 2] + b[i]
+            s = (abs(A[i, 0]) * abs(x[v, 0]) + abs(A[i, 1]) * abs(x[v, 1]) + abs(A[i, 2]) * abs(x[v, 2])
+                 + abs(b[i]) + abs(x_def[v, i]))
+            e = abs(x_def[v, i] - y) + k * s
+            q += e * e
+        if q > m or q != q:
+            m = q
+    return m
 
 
 def _start_distance(x, kind, idx):

@@ -30,6 +30,7 @@ from ...constants import CCD_MAX_EXACT, DEFAULT_MAX_PAIRS
 from ...errors import InputError
 from ..contact.broad_phase import (
     edge_edge_candidates,
+    edge_face_candidates,
     edge_edge_candidates_between,
     vertex_face_candidates,
     vertex_face_candidates_between,
@@ -206,21 +207,21 @@ def _share_no_vertex(E, F, k, f):
 def _edge_face(col, kind, V, E, F, swap=False):
     """Static: closed edges E meeting closed faces F (index arrays into V), shared vertices skipped.
 
-    Each edge becomes a point moving from its first to its second end point: the
-    vertex-face broad phase over that swept point finds the edge-face candidates,
-    and the vertex-face CCD against the static face is the exact segment-triangle
-    test (as in `penfree.core.contact.intersection`).
+    The broad phase keeps the pairs whose boxes overlap and which its certified float
+    filter cannot prove apart (`broad_phase.edge_face_candidates`); for those, each
+    edge becomes a point moving from its first to its second end point, and the
+    vertex-face CCD against the static face is the exact segment-triangle test (as in
+    `penfree.core.contact.intersection`).
     """
     if not len(E) or not len(F):
         return
+    V = np.ascontiguousarray(V, dtype=np.float64)
     n = V.shape[0]
-    V0 = np.concatenate([V, V[E[:, 0]]])
-    V1 = np.concatenate([V, V[E[:, 1]]])
-    cand = vertex_face_candidates_between(V0, V1, n + np.arange(len(E)), F, 0.0)
-    k, f = cand[:, 0] - n, cand[:, 1]
-    keep = _share_no_vertex(E, F, np.ascontiguousarray(k), np.ascontiguousarray(f))
-    k, f = k[keep], f[keep]
-    idx = np.concatenate([(n + k)[:, None], F[f]], axis=1)
+    cand = edge_face_candidates(V, E, F)
+    k, f = cand[:, 0], cand[:, 1]
+    V0 = np.concatenate([V, V[E[k, 0]]])
+    V1 = np.concatenate([V, V[E[k, 1]]])
+    idx = np.concatenate([(n + np.arange(len(k)))[:, None], F[f]], axis=1)
     for s in range(0, len(k), _BLOCK):
         sl = slice(s, s + _BLOCK)
         status, _, _, _ = ccd_indexed(V0, V1, idx[sl], "vf", 0.0)

@@ -16,6 +16,7 @@ from numba import njit
 
 from ..contact.ccd import ccd_indexed
 from ..contact.neighbours import NeighbourList
+from ..contact.orient import segment_may_meet_triangle
 from .path import _BLOCK, _narrow, _share_no_vertex
 
 #: A listed pair is dropped before the CCD only when its computed distance exceeds
@@ -25,6 +26,13 @@ _KEEP_REL = 1e-9
 _PAD_REL = 1e-12
 
 
+def apart_sq(g, x) -> float:
+    """Squared distance above which a computed pair distance proves the pair more than
+    `g` apart at `x` (``(g (1 + _KEEP_REL) + _PAD_REL |x|max)^2``)."""
+    mag = float(np.abs(x).max()) if x.size else 0.0
+    return (g * (1.0 + _KEEP_REL) + _PAD_REL * mag) ** 2
+
+
 def result_lists(scene_E, scene_F):
     """A `NeighbourList` for the start states of a result's steps, with edge-face pairs."""
     return NeighbourList(scene_E, scene_F, edge_face=True)
@@ -32,7 +40,8 @@ def result_lists(scene_E, scene_F):
 
 @njit(cache=True)
 def _boxes_touch(x, E, F, ef):
-    # The fresh pass's broad phase: exact (uninflated) boxes of edge and face at x.
+    # The fresh pass's broad phase: exact (uninflated) boxes of edge and face at x,
+    # and its certified float filter (a pair it clears provably misses).
     out = np.empty(ef.shape[0], dtype=np.bool_)
     for k in range(ef.shape[0]):
         e, f = ef[k, 0], ef[k, 1]
@@ -45,6 +54,8 @@ def _boxes_touch(x, E, F, ef):
             if elo > fhi or flo > ehi:
                 ok = False
                 break
+        if ok:
+            ok = segment_may_meet_triangle(x[E[e, 0]], x[E[e, 1]], x[F[f, 0]], x[F[f, 1]], x[F[f, 2]])
         out[k] = ok
     return out
 
@@ -52,8 +63,9 @@ def _boxes_touch(x, E, F, ef):
 def listed_edge_face(col, x, E, F, ef):
     """`verify._edge_face` (kind ``"ef"``) over the listed edge-face pairs `ef` (K, 2).
 
-    The listed pairs whose exact boxes at `x` touch are the fresh pass's candidates
-    (an edge meeting a face has touching boxes), tested by the same exact test.
+    The listed pairs whose exact boxes at `x` touch and which the float filter of
+    `penfree.core.contact.orient` cannot clear are the fresh pass's candidates (an
+    edge meeting a face has touching boxes), tested by the same exact test.
     """
     if not len(ef):
         return
@@ -102,8 +114,7 @@ def listed_start_pass(col, nl, x, g):
     if len(F):
         listed_edge_face(col, x, E, F, pairs["ef"])
     d_ee, d_vf = nl.pair_sq(x)
-    mag = float(np.abs(x).max()) if x.size else 0.0
-    keep = (g * (1.0 + _KEEP_REL) + _PAD_REL * mag) ** 2
+    keep = apart_sq(g, x)
     ee = pairs["ee"][d_ee <= keep]
     if len(ee):
         _narrow(col, "ee", ee, E[ee].reshape(-1, 4), x, x, "ee", g)

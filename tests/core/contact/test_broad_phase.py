@@ -233,3 +233,57 @@ def test_random_soup_matches_brute(seed, n, spread, inflation):
                                   edge_edge_candidates_brute(V, V1, E, inflation))
     np.testing.assert_array_equal(vertex_face_candidates(V, V1, F, inflation),
                                   vertex_face_candidates_brute(V, V1, F, inflation))
+
+
+def test_overflowing_chunks_are_refilled(rng, monkeypatch):
+    # The one-pass enumeration sizes each chunk's buffer from a sample of rows; with no
+    # slack every chunk holding a pair runs out and is refilled at exact offsets.
+    V, F = cloth(40, rng)
+    E = edges_from_faces(F)
+    V1 = _motion("swept", V, rng)
+    expect = edge_edge_candidates_brute(V, V1, E, 0.01)
+    assert len(E) > 4 * bp._PAIR_CHUNK_MIN_ROWS  # several chunks
+    monkeypatch.setattr(bp, "_CAP_SLACK", 0.0)
+    monkeypatch.setattr(bp, "_CAP_PAD", 0)
+    np.testing.assert_array_equal(edge_edge_candidates(V, V1, E, 0.01), expect)
+    monkeypatch.setattr(bp, "_CAP_PAD", 3)  # some chunks fit, some overflow
+    np.testing.assert_array_equal(edge_edge_candidates(V, V1, E, 0.01), expect)
+    np.testing.assert_array_equal(vertex_face_candidates(V, V1, F, 0.01),
+                                  vertex_face_candidates_brute(V, V1, F, 0.01))
+
+
+def _min_pair_sq_brute(V, TA, TB, inflation, self_query):
+    from oracles import _brute, _np_boxes, ee_sq, pt_sq
+
+    loA, hiA = _np_boxes(V, V, TA, inflation)
+    loB, hiB = _np_boxes(V, V, TB, inflation)
+    from fractions import Fraction
+
+    X = [[Fraction(float(c)) for c in row] for row in V]
+    best = np.inf
+    for i, j in _brute(loA, hiA, TA, loB, hiB, TB, self_query):
+        if TA.shape[1] == 2:
+            d = ee_sq(*(X[v] for v in TA[i]), *(X[v] for v in TB[j]))
+        else:
+            d = pt_sq(X[TA[i, 0]], *(X[v] for v in TB[j]))
+        best = min(best, float(d))
+    return best
+
+
+@pytest.mark.parametrize("inflation", [0.0, 0.004, 0.02])
+def test_min_pair_sq_matches_brute(rng, inflation):
+    # The smallest distance over the pairs whose inflated boxes overlap (the
+    # certificate path's "anything within g?") against the O(n^2) oracle in exact
+    # arithmetic: equal up to the distance kernels' rounding; inf with no pair.
+    V, F = cloth(12, rng)
+    E = edges_from_faces(F)
+    Q = np.arange(len(V), dtype=np.int64)[:, None]
+    for TA, TB, sq in ((E, E, True), (Q, F, False)):
+        got = bp.min_pair_sq(V, TA, TB, inflation, sq)
+        want = _min_pair_sq_brute(V, TA, TB, inflation, sq)
+        if np.isinf(want):
+            assert np.isinf(got)
+        else:
+            assert abs(got - want) <= 1e-12 * max(want, 1e-12)
+    far = np.array([[0.0, 0, 0], [1, 0, 0], [0, 5, 0], [1, 5, 0]])
+    assert np.isinf(bp.min_pair_sq(far, np.array([[0, 1], [2, 3]]), np.array([[0, 1], [2, 3]]), 0.1, True))

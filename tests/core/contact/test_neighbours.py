@@ -150,7 +150,7 @@ def test_affine_residual_bounds_the_true_residual():
 @pytest.fixture
 def force_parallel(monkeypatch):
     """Run the dual-build kernels' parallel builds even on small inputs."""
-    for k in (nbm._ee_sq, nbm._vf_sq, nbm._gather_min, bp._count_rows, bp._fill_rows, bp._min_rows):
+    for k in (nbm._ee_sq, nbm._vf_sq, nbm._gather_min, bp._fill_chunks, bp._gather_chunks, bp._min_rows):
         monkeypatch.setattr(k, "min_work", 0)
     yield
     numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
@@ -166,8 +166,9 @@ def test_identical_for_one_and_two_threads(force_parallel):
         numba.set_num_threads(threads)
         nl = NeighbourList(E, F, skin=0.01)
         out[threads] = (nl.separations(V, 0.02), nl.pairs(V, 0.02), per_vertex_separation(V, E, F, 0.02),
-                        edge_edge_candidates(V, V, E, 0.01))
+                        edge_edge_candidates(V, V, E, 0.01), bp.min_pair_sq(V, E, E, 0.01, True))
     a, b = out.values()
+    assert a[4] == b[4]
     np.testing.assert_array_equal(a[0], b[0])
     np.testing.assert_array_equal(a[2], b[2])
     np.testing.assert_array_equal(a[3], b[3])

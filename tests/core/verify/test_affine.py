@@ -42,3 +42,34 @@ def test_affine_fast_path_refuses_what_it_cannot_prove():
     assert not verify_step(V, bad, faces=F).ok
     # thickness larger than the gap: the start state violates, the fast path declines
     assert verify_affine_step(V, V, A, np.zeros(3), faces=F, thickness=0.6) is None
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_distance_pass_never_clears_a_pair_the_static_ccd_flags(seed):
+    # `_proven_apart` (one pass over computed distances) may skip the static CCD only
+    # when that CCD finds nothing within g. Two sheets at gaps straddling g, jittered.
+    from penfree.core.verify.affine import _proven_apart
+    from penfree.core.verify.path import _bodies, _Collector, _pairs_self
+
+    rng = np.random.default_rng(seed)
+    g = 0.1
+    for gap in (0.5 * g, g * (1 - 1e-7), g, g * (1 + 1e-7), 1.01 * g, 3 * g):
+        V, F = two_sheets(n=5, gap=gap)
+        V = V + rng.normal(scale=1e-9, size=V.shape) * (seed > 0)
+        scene = _bodies(V, V, None, F, None)[0]
+        col = _Collector()
+        _pairs_self(col, scene, g, static=True)
+        if _proven_apart(scene, g):
+            assert not col.kinds, gap
+        if gap < g * (1 - 1e-6):
+            assert not _proven_apart(scene, g) and col.kinds
+    V, F = two_sheets(n=5, gap=3 * g)
+    assert _proven_apart(_bodies(V, V, None, F, None)[0], g)
+
+
+def test_affine_step_with_a_pair_inside_g_goes_to_the_ccd():
+    # A start gap below g = thickness / m: the distance pass cannot clear it, the
+    # static CCD flags it, and the certificate path declines (full CCD decides).
+    V, F = two_sheets(n=4, gap=0.01)
+    A = np.diag([1.01, 1.0, 1.0])
+    assert verify_affine_step(V, _affine(V, A, np.zeros(3)), A, np.zeros(3), faces=F, thickness=0.02) is None
