@@ -350,7 +350,8 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
     ``own``) gets smaller trust regions and may need more passes than predicted
     (README, "Using penfree inside a simulator"; `penfree.predeform`). To choose by
     an OGC client's replayed CD passes instead of the static K_1pct, the pipeline
-    re-orders `ranked_candidates` with `penfree.core.pipeline.client_select`.
+    re-orders `ranked_candidates` (with ``repeat=True``: plus the ``rigid-repeat``
+    candidate) with `penfree.core.pipeline.client_select`.
 
     Cost: one moment pass, then per distinct candidate one fused O(N) pass that
     predicts without forming x_def (`predict_map_passes`) and one pass over the ratios
