@@ -60,6 +60,9 @@ class ClientModel:
         re-implementation (default; no ipctk needed) or ``ipctk.ogc.TrustRegion``
         itself (slower; exact where the own client's filters can only match it up to
         rounding, e.g. nearly parallel stacked layers, see `penfree.core.trust.planar`).
+    repeat : bool
+        Add the ``rigid-repeat`` candidate and predict toward the co-rotated target
+        (default); False keeps the candidates and target of the static `auto`.
     """
 
     truncation: str
@@ -69,6 +72,7 @@ class ClientModel:
     faces: object = None
     shortlist: int = K.CLIENT_SELECT_SHORTLIST
     predictor: str = "own"
+    repeat: bool = True
 
     def __post_init__(self):
         if self.predictor not in CLIENTS:
