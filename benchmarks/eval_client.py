@@ -29,12 +29,13 @@ from penfree.core.pipeline.deform import deform_sequence
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 
 
-def evaluate(path, every=1, client="ipctk", truncations=("isotropic", "planar")):
+def evaluate(path, every=1, client="ipctk", truncations=("isotropic", "planar"), predictor="own", repeat=True):
     seq = read_sequence(path)
     dhat = resolve_dhat(None, seq.contact_radius, seq.thickness)
     rows = {}
     for tr in truncations:
-        cm = ClientModel(truncation=tr, dhat=dhat, edges=seq.edges, faces=seq.faces)
+        cm = ClientModel(truncation=tr, dhat=dhat, edges=seq.edges, faces=seq.faces, predictor=predictor,
+                         repeat=repeat)
         t0 = time.perf_counter()
         out = deform_sequence(seq, model="auto", client_model=cm)
         t_fit = time.perf_counter() - t0
@@ -53,16 +54,20 @@ def main(argv=None):
     ap.add_argument("--every", type=int, default=1)
     ap.add_argument("--client", default="ipctk", choices=("ipctk", "own"))
     ap.add_argument("--truncation", default="both", choices=("isotropic", "planar", "both"))
+    ap.add_argument("--predictor", default="own", choices=("own", "ipctk"),
+                    help="the client auto replays its candidates through (ClientModel.predictor)")
+    ap.add_argument("--no-repeat", action="store_true",
+                    help="without the rigid-repeat candidate and the co-rotated target (ClientModel.repeat)")
     a = ap.parse_args(argv)
     files = a.files or sorted(glob.glob(os.path.join(ROOT, "samples", "*.h5")))
     print(f"real-client CD passes summed over each sequence ({a.client}, every {a.every} step(s)); "
-          "auto chosen with --client-model = the truncation of the column, radius rule step")
+          f"auto chosen with --client-model = the truncation of the column, radius rule step, predictor {a.predictor}")
     print()
     print("| sample | truncation | steps (moved) | baseline | auto, rule step | change | auto, rule own | change |")
     print("|---|---|---|---|---|---|---|---|")
     for path in files:
         trs = ("isotropic", "planar") if a.truncation == "both" else (a.truncation,)
-        rows = evaluate(path, a.every, a.client, trs)
+        rows = evaluate(path, a.every, a.client, trs, a.predictor, not a.no_repeat)
         for tr, r in rows.items():
             print(f"| {os.path.basename(path)} | {tr} | {r['n']} ({r['moved']}) | {r['baseline']} | {r['step']} | "
                   f"{100 * r['step_change']:+.0f}% | {r['own']} | {100 * r['own_change']:+.0f}% |")

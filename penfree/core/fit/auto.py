@@ -243,13 +243,15 @@ def _passes(A, margin):
     return certify_map(A, margin)
 
 
-def candidate_maps(m, margin=0.0, projection="auto") -> list:
+def candidate_maps(m, margin=0.0, projection="auto", repeat=False) -> list:
     """All certified candidates of a step, simplest first.
 
     ``none`` (doing nothing), ``translation``, ``rigid``, ``similarity``, ``affine``,
     the affine map with its singular values clamped into ``[1 - delta, 1 + delta]``
     (`SELECT_CLAMP_LEVELS`, reflection-free) and the blends ``I + alpha D_affine``
-    (`SELECT_BLEND_LEVELS`). Every returned map passes the exact certificate.
+    (`SELECT_BLEND_LEVELS`); with `repeat`, after ``affine``, ``rigid-repeat``: the step's own
+    rigid motion applied again (`models.fit_rigid_repeat`, constant angular
+    velocity). Every returned map passes the exact certificate.
     """
     zero = np.zeros((3, 3))
     out = [Candidate("none", _I3.copy(), zero, np.zeros(3), 0, "none", 1.0, 1.0),
@@ -260,6 +262,11 @@ def candidate_maps(m, margin=0.0, projection="auto") -> list:
         c = _certified(name, D, u, rank, m, margin, projection)
         if name == "affine":
             D_aff, rank_aff, aff = D, rank, c
+        if c is not None:
+            out.append(c)
+    if repeat:
+        D, u, rank = _fit.fit_rigid_repeat(m)
+        c = _certified("rigid-repeat", D, u, rank, m, margin, "none") if np.any(D) else None
         if c is not None:
             out.append(c)
     if D_aff is None or not np.any(D_aff):
@@ -343,7 +350,8 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
     ``own``) gets smaller trust regions and may need more passes than predicted
     (README, "Using penfree inside a simulator"; `penfree.predeform`). To choose by
     an OGC client's replayed CD passes instead of the static K_1pct, the pipeline
-    re-orders `ranked_candidates` with `penfree.core.pipeline.client_select`.
+    re-orders `ranked_candidates` (with ``repeat=True``: plus the ``rigid-repeat``
+    candidate) with `penfree.core.pipeline.client_select`.
 
     Cost: one moment pass, then per distinct candidate one fused O(N) pass that
     predicts without forming x_def (`predict_map_passes`) and one pass over the ratios
@@ -359,11 +367,12 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
 
 
 def ranked_candidates(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA, weights=None,
-                      margin=0.0, projection="auto"):
+                      margin=0.0, projection="auto", repeat=False):
     """Validated ``x, x_prev``, the moments and every certified candidate with its prediction.
 
-    Parameters as in `select_step`. Order the candidates with `rank`; build the
-    applied one with `candidate_result`.
+    Parameters as in `select_step` (`repeat`: add the ``rigid-repeat`` candidate of
+    `candidate_maps`). Order the candidates with `rank`; build the applied one with
+    `candidate_result`.
     """
     # NaN/Inf positions are caught by fit_moments from its sums (no extra pass here).
     x = _fit.as_positions(x, "x", check_finite=False)
@@ -374,7 +383,7 @@ def ranked_candidates(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT
         raise InputError(f"d_start must be ({x.shape[0]},) to match x; got shape {d_start.shape}")
     r_q, thickness, gamma = float(r_q), float(thickness), float(gamma)
     m = _fit.fit_moments(x_prev, x, w, validate=False)
-    cands = candidate_maps(m, margin, projection)
+    cands = candidate_maps(m, margin, projection, repeat)
     r_buf = np.empty(x.shape[0])
     seen = {}
     for cand in cands:

@@ -270,6 +270,31 @@ def fit_similarity(m: Moments, slope_tol=None):
     return s * R - np.eye(3), m.u.copy(), r
 
 
+def fit_rigid_repeat(m: Moments, slope_tol=None):
+    """The step's own rigid motion applied again (constant angular velocity).
+
+    The Kabsch rotation ``R`` taking the centred ``x_prev`` onto the centred ``x``
+    (``sum w (P - Q) P^T = C - G``), and the map ``x_def = c + R u + R (x - c)``:
+    the rigid motion ``T(p) = R (p - c_prev) + c`` that took ``x_prev`` to ``x``,
+    applied to ``x``. For a body rotating at a constant angular velocity about a
+    fixed axis (and translating at a constant velocity) ``T(x)`` is the next frame
+    exactly (to rounding), where the target ``x_pred = 2 x - x_prev`` of the other
+    models is off by ``O(theta^2)`` of the radius.
+
+    Returns ``(D, u, rank)`` with ``D = R - I``; ``rank < 2`` (a line or a point: the
+    spin about it is unobserved) gives the translation ``D = 0, u``.
+    """
+    E, _ = significant_subspace(m, slope_tol)
+    r = E.shape[1]
+    if r < 2:
+        return np.zeros((3, 3)), m.u.copy(), r
+    H = E @ E.T @ (m.C - m.G)  # sum w P_prev P^T on the significant subspace
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
+    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    return R - np.eye(3), R @ m.u, r
+
+
 _FITTERS = {
     "translation": fit_translation,
     "rigid": fit_rigid,

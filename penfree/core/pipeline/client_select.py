@@ -15,13 +15,17 @@ two things it misses:
 
 The predictor therefore replays each shortlisted candidate through penfree's own
 client (`client.replay_step` with ``client="own"``: the same warm start, filters and
-1% update rule as ``ipctk.ogc.TrustRegion``), warm-starting toward ``x_pred`` and
-iterating toward the *held target* ``y_hat`` (``x_pred`` for free vertices, ``x``
-for contact vertices), and again toward ``(x + y_hat) / 2`` (the solver stopping
-half-way: contacts, damping, turning motion). The score is the sum of the two
-pass counts. Doing nothing is always replayed; a candidate replaces it only with a
+1% update rule as ``ipctk.ogc.TrustRegion``; ``ClientModel.predictor="ipctk"``
+replays through ipctk itself), warm-starting toward ``x_pred`` and iterating toward
+the *held target* ``y_hat`` (`corotated_target` for free vertices: ``x_pred`` with
+the step's rotation continued, ``x`` for contact vertices), and again toward
+``(x + y_hat) / 2`` (the solver stopping half-way: contacts, damping, turning
+motion). The score is the sum of the two pass counts. Besides the shortlist (the
+best static predictions), the ``rigid-repeat`` candidate (the step's own rigid
+motion applied again, `penfree.core.fit.models.fit_rigid_repeat`) is always
+replayed. Doing nothing is always replayed; a candidate replaces it only with a
 strictly smaller score and no more passes toward ``y_hat`` than doing nothing (ties
-go to doing nothing).
+go to the earlier candidate, doing nothing first).
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ import numpy as np
 from ... import constants as K
 from ...errors import InputError
 from ..fit import models as _fit
-from ..trust.client import RADIUS_RULES, TRUNCATIONS, replay_step
+from ..trust.client import CLIENTS, RADIUS_RULES, TRUNCATIONS, replay_step
 
 
 @dataclass
@@ -51,6 +55,14 @@ class ClientModel:
         Topology.
     shortlist : int
         Candidates (besides doing nothing) replayed per step, best static first.
+    predictor : {"own", "ipctk"}
+        The client the candidates are replayed through: penfree's own
+        re-implementation (default; no ipctk needed) or ``ipctk.ogc.TrustRegion``
+        itself (slower; exact where the own client's filters can only match it up to
+        rounding, e.g. nearly parallel stacked layers, see `penfree.core.trust.planar`).
+    repeat : bool
+        Add the ``rigid-repeat`` candidate and predict toward the co-rotated target
+        (default); False keeps the candidates and target of the static `auto`.
     """
 
     truncation: str
@@ -59,8 +71,12 @@ class ClientModel:
     edges: object = None
     faces: object = None
     shortlist: int = K.CLIENT_SELECT_SHORTLIST
+    predictor: str = "own"
+    repeat: bool = True
 
     def __post_init__(self):
+        if self.predictor not in CLIENTS:
+            raise InputError(f"client model predictor must be one of {CLIENTS}; got {self.predictor!r}")
         if self.truncation not in TRUNCATIONS:
             raise InputError(f"client model truncation must be one of {TRUNCATIONS}; got {self.truncation!r}")
         if self.radius not in RADIUS_RULES:
@@ -82,10 +98,41 @@ def held_target(x, x_pred, d_start, dhat, r_q=np.inf):
     return y
 
 
-def _static_order(cands):
-    """Candidate indices (doing nothing excluded) best static prediction first."""
-    idx = range(1, len(cands))
-    return sorted(idx, key=lambda i: (cands[i].predicted["k_1pct"], cands[i].predicted["r_q99"], i))
+#: Candidates replayed whatever their static prediction (besides the shortlist): the
+#: static predictor measures the distance to ``x_pred``, which a rotating body's
+#: ``rigid-repeat`` map deliberately misses.
+ALWAYS_REPLAYED = ("rigid-repeat",)
+
+
+def corotated_target(x_prev, x, A, u, c):
+    """Where the solver is expected to go: constant velocity in the co-rotating frame.
+
+    With ``T(p) = c + u + A (p - c)`` the step's own rigid motion (the ``rigid-repeat``
+    candidate, `models.fit_rigid_repeat`: ``T(x_prev) ~ x``), the target is
+    ``T(x) + A (x - T(x_prev))``: the rigid motion continued, plus the non-rigid part
+    of the last step carried along. It is ``2 x - x_prev`` exactly when ``A = I``, and
+    the next frame (to rounding) for a body rotating at a constant angular velocity.
+    """
+    A = np.asarray(A, dtype=np.float64)
+    base = np.asarray(c, dtype=np.float64) + np.asarray(u, dtype=np.float64)
+    t_x = base + (x - c) @ A.T
+    t_prev = base + (np.asarray(x_prev, dtype=np.float64) - c) @ A.T
+    return t_x + (x - t_prev) @ A.T
+
+
+def _replay_order(cands, shortlist):
+    """Candidate indices to replay (doing nothing excluded): the `shortlist` distinct
+    maps with the best static prediction, their duplicates, then `ALWAYS_REPLAYED`."""
+    rest = [i for i in range(1, len(cands)) if cands[i].name not in ALWAYS_REPLAYED]
+    rest.sort(key=lambda i: (cands[i].predicted["k_1pct"], cands[i].predicted["r_q99"], i))
+    order, keys = [], set()
+    for i in rest:
+        key = (cands[i].A.tobytes(), cands[i].u.tobytes())
+        if key not in keys and len(keys) >= shortlist:
+            break
+        keys.add(key)
+        order.append(i)
+    return order + [i for i in range(1, len(cands)) if cands[i].name in ALWAYS_REPLAYED]
 
 
 def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.inf) -> int:
@@ -96,14 +143,16 @@ def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.
     """
     x64 = np.asarray(x, dtype=np.float64)
     x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
-    y_hat = held_target(x64, x_pred, d_start, model.dhat, r_q)
+    rot = next((cd for cd in cands if cd.name in ALWAYS_REPLAYED), None)
+    y = x_pred if rot is None else corotated_target(x_prev, x64, rot.A, rot.u, c)
+    y_hat = held_target(x64, y, d_start, model.dhat, r_q)
     # The solver rarely lands on the prediction: a move must also pay off when it
     # gets only half-way there (contacts, damping, a turning motion).
     y_half = 0.5 * (x64 + y_hat)
 
     def replay(x_def, y, max_iter):
         return replay_step(x_def, x64, x_pred, y, edges=model.edges, faces=model.faces, dhat=model.dhat,
-                           thickness=thickness, truncation=model.truncation, radius=model.radius, client="own",
+                           thickness=thickness, truncation=model.truncation, radius=model.radius, client=model.predictor,
                            max_iter=max_iter)["passes"]
 
     def passes(cand, none=None):
@@ -133,22 +182,19 @@ def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.
     best, best_p = 0, none
     seen = {}
     n = 0
-    for i in _static_order(cands):
+    for i in _replay_order(cands, model.shortlist):
         key = (cands[i].A.tobytes(), cands[i].u.tobytes())
         if key in seen:
             cands[i].predicted.update({k: cands[seen[key]].predicted[k]
                                        for k in ("client_passes", "client_passes_half")})
             continue
-        if n >= model.shortlist:
-            break
         seen[key] = i
-        n += 1
         p = passes(cands[i], none)
         cands[i].predicted["client_passes"], cands[i].predicted["client_passes_half"] = p
         # The score is the passes toward the target plus those toward the half-way
         # point; a candidate must lower it strictly, and must not need more passes
-        # than doing nothing toward the target. Ties go to the simpler (earlier)
-        # candidate, doing nothing first.
+        # than doing nothing toward the target. Ties go to the earlier candidate
+        # (doing nothing first, the always-replayed ones last).
         if sum(p) < sum(best_p) and p[0] <= none[0]:
             best, best_p = i, p
     return best

@@ -101,8 +101,11 @@ def predeform(x_prev, x, *, edges=None, faces=None, contact_radius=0.0, thicknes
     Notes
     -----
     One step of `penfree deform --model auto --client-model TRUNCATION`: the certified
-    candidates, ordered by the client's replayed CD passes under the radius rule
-    ``step`` (doing nothing stays a candidate and wins ties), then shortened steps,
+    candidates (the model ladder, clamps and blends toward ``x_pred``, and
+    ``rigid-repeat``, the step's own rigid motion applied again), ordered by the
+    client's replayed CD passes under the radius rule ``step`` toward the co-rotated
+    target (`client_select.corotated_target`; doing nothing stays a candidate and wins
+    ties), then shortened steps,
     then doing nothing; the first that passes the step gate (certificate, near-pair
     CCD with the thickness, obstacles) is applied. Keep ``query_radius`` (module doc):
     with the ``own`` rule the savings can turn into losses.

@@ -154,7 +154,8 @@ class Auto:
         t0 = time.perf_counter()
         x, x_prev, m, cands = ranked_candidates(step.x_prev, step.x, d_start, r_q=step.r_q,
                                                 thickness=self.thickness, weights=step.weights,
-                                                margin=step.margin, projection=self.projection)
+                                                margin=step.margin, projection=self.projection,
+                                                repeat=self.client_model is not None and self.client_model.repeat)
         order = rank(cands)
         if self.client_model is not None:  # the client's replayed passes pick the first; the rest as ranked
             from .client_select import choose_by_client

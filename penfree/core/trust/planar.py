@@ -80,11 +80,20 @@ def _ee_features(P, eac, ebc, coef):
         t = _line_param(P, eac, 2, 3)
         _set(coef, 1.0 - eac, float(eac), -(1.0 - t), -t)
     else:
-        a, b, c = _dd(P, 1, 0, 1, 0), _dd(P, 1, 0, 3, 2), _dd(P, 3, 2, 3, 2)
-        d, e = _dd(P, 1, 0, 0, 2), _dd(P, 3, 2, 0, 2)
-        D = a * c - b * b
-        s = (b * e - c * d) / D
-        t = (a * e - b * d) / D
+        # s = (b e - c d) / (a c - b^2), t = (a e - b d) / (a c - b^2) through
+        # Lagrange's identity as cross products, n = u x v:
+        # s = n . (v x w) / |n|^2, t = n . (u x w) / |n|^2. The dot-product form
+        # cancels catastrophically for nearly parallel edges (stacked cloth layers:
+        # a c - b^2 ~ 1e-6 a c leaves s, t with errors ~1e-10, and the closest-point
+        # direction tilts out of the layer by that much times the edges' height
+        # difference, enough to truncate vertices moving straight down).
+        ux, uy, uz = P[1, 0] - P[0, 0], P[1, 1] - P[0, 1], P[1, 2] - P[0, 2]
+        vx, vy, vz = P[3, 0] - P[2, 0], P[3, 1] - P[2, 1], P[3, 2] - P[2, 2]
+        wx, wy, wz = P[0, 0] - P[2, 0], P[0, 1] - P[2, 1], P[0, 2] - P[2, 2]
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        n2 = nx * nx + ny * ny + nz * nz
+        s = (nx * (vy * wz - vz * wy) + ny * (vz * wx - vx * wz) + nz * (vx * wy - vy * wx)) / n2
+        t = (nx * (uy * wz - uz * wy) + ny * (uz * wx - ux * wz) + nz * (ux * wy - uy * wx)) / n2
         _set(coef, 1.0 - s, s, -(1.0 - t), -t)
 
 

@@ -113,3 +113,42 @@ class TestPredeform:
             penfree.predeform(X, X)
         with pytest.raises(InputError, match="contact_radius"):
             penfree.predeform(X, X, edges=EDGES)
+
+
+def test_predictor_validation():
+    with pytest.raises(InputError, match="predictor"):
+        ClientModel(truncation="planar", dhat=1.0, predictor="magic")
+
+
+@pytest.mark.parametrize("truncation", ["isotropic", "planar"])
+def test_ipctk_predictor_agrees_on_the_hand_count(truncation):
+    """``predictor="ipctk"`` replays through ipctk itself: on the translating pair the
+    same choice and counts as the own client (3 passes for doing nothing isotropic)."""
+    pytest.importorskip("ipctk", reason="the ipctk predictor needs ipctk (penfree[ogc]); make test installs it")
+    from penfree.core.pipeline.deform import deform_sequence
+
+    seq = penfree.Sequence(positions=np.stack([X - V, X]), edges=EDGES, contact_radius=1.0).validate()
+    models = {}
+    for predictor in ("own", "ipctk"):
+        cm = ClientModel(truncation=truncation, dhat=1.0, edges=EDGES, predictor=predictor)
+        out = deform_sequence(seq, model="auto", client_model=cm)
+        models[predictor] = (str(out.steps["model"][0]), out.steps["deformed"][0].tolist())
+    assert models["own"] == models["ipctk"]
+
+
+def test_repeat_switch():
+    """``repeat=False``: no rigid-repeat candidate in a spinning step's table."""
+    t = np.linspace(0.0, 2 * np.pi, 9)[:-1]
+    ring = np.column_stack([np.cos(t), np.sin(t), np.zeros(8)])
+    edges = np.column_stack([np.arange(8), (np.arange(8) + 1) % 8])
+    c, s_ = np.cos(0.2), np.sin(0.2)
+    Rz = np.array([[c, -s_, 0], [s_, c, 0], [0, 0, 1]])
+    seq = penfree.Sequence(positions=np.stack([ring, ring @ Rz.T]), edges=edges, contact_radius=0.01).validate()
+    from penfree.core.pipeline.deform import deform_sequence
+
+    names = {}
+    for repeat in (True, False):
+        cm = ClientModel(truncation="isotropic", dhat=0.01, edges=edges, repeat=repeat)
+        out = deform_sequence(seq, model="auto", client_model=cm)
+        names[repeat] = set(out.groups["selection"]["candidates"].tolist())
+    assert "rigid-repeat" in names[True] and "rigid-repeat" not in names[False]
