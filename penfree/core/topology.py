@@ -114,6 +114,22 @@ def edges_from_faces(F) -> np.ndarray:
     return _unique_face_edges(np.ascontiguousarray(F), int(F.max()) + 1)
 
 
+@njit(cache=True, inline="always")
+def sort_segment(J, a, b):
+    """Sort ``J[a:b]`` in place: insertion sort for the short runs of adjacency and
+    candidate rows (no allocation inside parallel loops), `np.sort` above 64 entries."""
+    if b - a > 64:
+        J[a:b] = np.sort(J[a:b])
+        return
+    for k in range(a + 1, b):
+        v = J[k]
+        m = k - 1
+        while m >= a and J[m] > v:
+            J[m + 1] = J[m]
+            m -= 1
+        J[m + 1] = v
+
+
 @njit(cache=True)
 def _unique_face_edges(F, n):
     # Counting sort of the 3F half-edges (lo, hi) by lo, then per lo the few hi sorted
@@ -140,15 +156,7 @@ def _unique_face_edges(F, n):
     m = 0
     for v in range(n):
         s, e = count[v], count[v + 1]
-        if e - s > 32:  # a high-degree vertex (a fan): no quadratic insertion sort
-            hi[s:e] = np.sort(hi[s:e])
-        for k in range(s + 1, e):
-            x = hi[k]
-            j = k - 1
-            while j >= s and hi[j] > x:
-                hi[j + 1] = hi[j]
-                j -= 1
-            hi[j + 1] = x
+        sort_segment(hi, s, e)
         for k in range(s, e):
             if k == s or hi[k] != hi[k - 1]:
                 out[m, 0] = v

@@ -54,7 +54,7 @@ from ...errors import InputError
 from .distance import edge_edge_sq, point_edge_sq, point_triangle_sq
 from .orient import segment_may_meet_triangle
 from ..parallel import parallel_kernel
-from ..topology import as_positions, as_topology
+from ..topology import as_positions, as_topology, sort_segment
 
 #: A box covering more cells than this is "big" and tested by brute force
 #: (3 x 3 x 3 = 27 cells is the worst case of a box twice the cell size;
@@ -336,25 +336,9 @@ def _fill_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
                 if pos + n > lim:
                     over = True
                 else:
-                    _sort_segment(J, pos, pos + n)
+                    sort_segment(J, pos, pos + n)
                     pos += n
         full[c] = over
-
-
-@njit(cache=True, inline="always")
-def _sort_segment(J, a, b):
-    # Rows are short (a few to a few hundred partners): insertion sort in
-    # place, no per-row allocation inside the parallel loop.
-    if b - a > 64:
-        J[a:b] = np.sort(J[a:b])
-        return
-    for k in range(a + 1, b):
-        v = J[k]
-        m = k - 1
-        while m >= a and J[m] > v:
-            J[m + 1] = J[m]
-            m -= 1
-        J[m + 1] = v
 
 
 def _min_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
