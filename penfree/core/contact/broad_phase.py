@@ -255,7 +255,7 @@ def _record(mode, i, j, TA, TB, J, pos, lim, V, dmin):
     return 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
                loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box, bigB,
                J, pos, lim, V, dmin):
