@@ -139,7 +139,13 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--vertices", type=int, default=65536)
+    ap.add_argument("--malloc-default", action="store_true",
+                    help="do not keep freed blocks in the heap (the CLI does: penfree.core.memory)")
     args = ap.parse_args(argv)
+    if not args.malloc_default:
+        from penfree.core.memory import retain_freed_memory
+
+        print(f"freed blocks kept in the heap, as the CLI does (both peers, one process): {retain_freed_memory()}")
 
     # JIT warm-up on small scenes (cached after the first run of the package)
     for make in (rods, cloth):

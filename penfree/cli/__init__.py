@@ -54,7 +54,10 @@ class PenfreeGroup(click.Group):
         """Click's main with one-line option errors and SIGTERM handled like Ctrl-C."""
         from ..formats.atomic import reset_committed
 
+        from ..core.memory import retain_freed_memory
+
         reset_committed()
+        retain_freed_memory()  # large scratch arrays reused, not re-faulted per call
         previous = _catch_sigterm()
         try:
             rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
