@@ -216,9 +216,18 @@ def _edge_face(col, kind, V, E, F, swap=False):
     if not len(E) or not len(F):
         return
     V = np.ascontiguousarray(V, dtype=np.float64)
-    n = V.shape[0]
     cand = edge_face_candidates(V, E, F)
-    k, f = cand[:, 0], cand[:, 1]
+    edge_face_exact(col, kind, V, E, F, cand[:, 0], cand[:, 1], swap)
+
+
+def edge_face_exact(col, kind, V, E, F, k, f, swap=False):
+    """The exact test of `_edge_face` on candidate pairs (edge ``E[k]``, face ``F[f]``).
+
+    Each edge becomes a point swept from its first to its second end point (rows
+    ``n + j`` of V0 / V1) and goes through the vertex-face CCD against the static
+    face; pairs are reported as ``(k, f)``, or ``(f, k)`` with `swap`.
+    """
+    n = V.shape[0]
     V0 = np.concatenate([V, V[E[k, 0]]])
     V1 = np.concatenate([V, V[E[k, 1]]])
     idx = np.concatenate([(n + np.arange(len(k)))[:, None], F[f]], axis=1)

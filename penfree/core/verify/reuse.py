@@ -14,10 +14,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..contact.ccd import ccd_indexed
 from ..contact.neighbours import NeighbourList
 from ..contact.orient import segment_may_meet_triangle
-from .path import _BLOCK, _narrow, _share_no_vertex
+from .path import _narrow, _share_no_vertex, edge_face_exact
 
 #: A listed pair is dropped before the CCD only when its computed distance exceeds
 #: g (1 + _KEEP_REL) + _PAD_REL * |x|max: far beyond the rounding of the distance
@@ -73,19 +72,7 @@ def listed_edge_face(col, x, E, F, ef):
     k = np.ascontiguousarray(ef[:, 0])
     f = np.ascontiguousarray(ef[:, 1])
     keep = _share_no_vertex(E, F, k, f)
-    k, f = k[keep], f[keep]
-    n = x.shape[0]
-    # Each listed edge becomes a point swept from its first to its second end point
-    # (rows n + j of V0 / V1), as in verify._edge_face.
-    V0 = np.concatenate([x, x[E[k, 0]]])
-    V1 = np.concatenate([x, x[E[k, 1]]])
-    idx = np.concatenate([(n + np.arange(len(k)))[:, None], F[f]], axis=1)
-    for s in range(0, len(k), _BLOCK):
-        sl = slice(s, s + _BLOCK)
-        status, _, _, _ = ccd_indexed(V0, V1, idx[sl], "vf", 0.0)
-        ij = np.stack([k[sl], f[sl]], axis=1)
-        zeros = np.zeros(len(ij))
-        col.add("ef", ij, status, zeros, zeros)
+    edge_face_exact(col, "ef", x, E, F, k[keep], f[keep])
 
 
 def listed_start_pass(col, nl, x, g):
