@@ -192,3 +192,8 @@ CLIENT_SELECT_SHORTLIST = 3
 #: cell's diagonal, and with the usual radius of half an edge a larger factor would
 #: hold every vertex of a free sheet.
 CONTACT_HOLD_FACTOR = 1.0
+#: ... and only while at rest: a contact vertex whose last step moved it more than this
+#: many contact radii is not held. gamma_p (`DEFAULT_GAMMA`) times the contact radius
+#: is the largest trust region a vertex in contact can have, so a vertex that moved
+#: farther moved with what it touches (a coil's turns swinging together).
+CONTACT_REST_STEP = DEFAULT_GAMMA

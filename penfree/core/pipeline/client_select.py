@@ -8,24 +8,31 @@ two things it misses:
   Under the radius rule ``step`` (how a pre-deformation is integrated: the
   simulator keeps the radius it computed at ``x``) the cap is the same for every
   candidate; under ``own`` it shrinks when ``x_def`` is closer to ``x_pred``.
-* **contact vertices that should not move.** Vertices in contact (start separation
-  within `CONTACT_HOLD_FACTOR` contact radii) barely move in reality: the solver
-  holds them, whatever ``x_pred`` says. A map that moves them spends their small
-  bounds and costs passes to bring them back.
+* **contact vertices that should not move.** Vertices in resting contact (start
+  separation within `CONTACT_HOLD_FACTOR` contact radii, and a last step no longer
+  than `CONTACT_REST_STEP` contact radii) barely move in reality: the solver holds
+  them, whatever ``x_pred`` says. A map that moves them spends their small bounds and
+  costs passes to bring them back. Contact vertices that moved farther in the last
+  step move with what they touch (a swinging coil's turns) and are not held: a target
+  that held them would be one the solver never reaches, and every moved candidate's
+  replay toward it would deadlock.
 
 The predictor therefore replays each shortlisted candidate through penfree's own
 client (`client.replay_step` with ``client="own"``: the same warm start, filters and
 1% update rule as ``ipctk.ogc.TrustRegion``; ``ClientModel.predictor="ipctk"``
 replays through ipctk itself), warm-starting toward ``x_pred`` and iterating toward
 the *held target* ``y_hat`` (`corotated_target` for free vertices: ``x_pred`` with
-the step's rotation continued, ``x`` for contact vertices), and again toward
+the step's rotation continued, ``x`` for the held vertices), and again toward
 ``(x + y_hat) / 2`` (the solver stopping half-way: contacts, damping, turning
-motion). The score is the sum of the two pass counts. Besides the shortlist (the
-best static predictions), the ``rigid-repeat`` candidate (the step's own rigid
-motion applied again, `penfree.core.fit.models.fit_rigid_repeat`) is always
-replayed. Doing nothing is always replayed; a candidate replaces it only with a
-strictly smaller score and no more passes toward ``y_hat`` than doing nothing (ties
-go to the earlier candidate, doing nothing first).
+motion). Besides the shortlist (the best static predictions), the ``rigid-repeat``
+candidate (the step's own rigid motion applied again,
+`penfree.core.fit.models.fit_rigid_repeat`) is always replayed. Doing nothing is
+always replayed and is the first candidate; a later one replaces the best so far
+only if it needs fewer passes toward ``y_hat``, or as many and fewer toward the
+half-way point (`_better`; ties go to the earlier candidate). Where doing nothing
+itself deadlocks toward ``y_hat`` (replays up to the iteration cap: resting layers
+creeping toward their planes), the half-way point alone decides, and where it
+deadlocks toward both nothing is moved.
 """
 
 from __future__ import annotations
@@ -85,16 +92,26 @@ class ClientModel:
             raise InputError(f"client model dhat must be > 0; got {self.dhat}")
 
 
-def held_target(x, x_pred, d_start, dhat, r_q=np.inf):
-    """``y_hat``: `x_pred`, with the contact vertices held at `x`.
+def held_target(x, x_pred, d_start, dhat, r_q=np.inf, x_prev=None):
+    """``y_hat``: `x_pred`, with the vertices in resting contact held at `x`.
 
     A vertex is in contact when its start separation (capped at `r_q`: a vertex at
-    the cap has nothing within the query) is at most `CONTACT_HOLD_FACTOR` `dhat`.
+    the cap has nothing within the query) is at most `CONTACT_HOLD_FACTOR` `dhat`. With
+    `x_prev` given, it is held only if it is also at rest: its last step
+    ``|x - x_prev|`` is at most `CONTACT_REST_STEP` `dhat`, the largest trust region a
+    vertex in contact can have. A contact vertex that moved farther than that was not
+    held by its contact: it moves with what it touches (a coil's turns swinging
+    together, layers carried together), and holding it would make the target one the
+    solver never reaches.
     """
     d_start = np.asarray(d_start)
     hold = (d_start <= K.CONTACT_HOLD_FACTOR * float(dhat)) & (d_start < r_q)
+    x64 = np.asarray(x, dtype=np.float64)
+    if x_prev is not None:
+        step = np.linalg.norm(x64 - np.asarray(x_prev, dtype=np.float64), axis=1)
+        hold &= step <= K.CONTACT_REST_STEP * float(dhat)
     y = np.array(x_pred, dtype=np.float64)
-    y[hold] = np.asarray(x, dtype=np.float64)[hold]
+    y[hold] = x64[hold]
     return y
 
 
@@ -138,50 +155,37 @@ def _replay_order(cands, shortlist):
 def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.inf) -> int:
     """Index of the candidate with the fewest predicted client passes (module doc).
 
-    Fills ``predicted["client_passes"]`` of the replayed candidates (others keep
-    none). Candidate 0 must be doing nothing.
+    Fills ``predicted["client_passes"]`` (toward ``y_hat``) and
+    ``predicted["client_passes_half"]`` (toward the half-way point) of the replayed
+    candidates, None where a replay was not needed. Candidate 0 must be doing nothing.
     """
     x64 = np.asarray(x, dtype=np.float64)
     x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
     rot = next((cd for cd in cands if cd.name in ALWAYS_REPLAYED), None)
     y = x_pred if rot is None else corotated_target(x_prev, x64, rot.A, rot.u, c)
-    y_hat = held_target(x64, y, d_start, model.dhat, r_q)
-    # The solver rarely lands on the prediction: a move must also pay off when it
-    # gets only half-way there (contacts, damping, a turning motion).
+    y_hat = held_target(x64, y, d_start, model.dhat, r_q, x_prev=x_prev)
+    # The solver rarely lands on the prediction: the half-way point breaks ties, and
+    # decides alone where the prediction deadlocks (see `_better`).
     y_half = 0.5 * (x64 + y_hat)
+    cap = K.DEFAULT_CLIENT_MAX_ITER
 
     def replay(x_def, y, max_iter):
         return replay_step(x_def, x64, x_pred, y, edges=model.edges, faces=model.faces, dhat=model.dhat,
                            thickness=thickness, truncation=model.truncation, radius=model.radius, client=model.predictor,
                            max_iter=max_iter)["passes"]
 
-    def passes(cand, none=None):
+    def start(cand):
         if cand.D.any() or cand.u.any():
-            x_def, _ = _fit.apply_map(x, cand.D, cand.u, c)
-            x_def = np.asarray(x_def, dtype=np.float64)
-        else:
-            x_def = x64
-        if none is None:
-            return replay(x_def, y_hat, K.DEFAULT_CLIENT_MAX_ITER), replay(x_def, y_half, K.DEFAULT_CLIENT_MAX_ITER)
-        # A replay stopped after k iterations that each asked for a CD pass has at
-        # least k + 1 passes: with these caps a stopped candidate always loses, so
-        # the comparison below is the same as with full replays (and far cheaper).
-        p0 = replay(x_def, y_hat, none[0])
-        if p0 > none[0]:
-            return p0, none[1] + 1
-        return p0, replay(x_def, y_half, max(0, sum(none) - p0))
+            return np.asarray(_fit.apply_map(x, cand.D, cand.u, c)[0], dtype=np.float64)
+        return x64
 
-    none = passes(cands[0])
-    cands[0].predicted["client_passes"] = none[0]
-    cands[0].predicted["client_passes_half"] = none[1]
-    if none[0] > K.DEFAULT_CLIENT_MAX_ITER:
-        # Doing nothing already deadlocks the predicted client (a pile creeping toward
-        # its planes, one CD pass per iteration up to the cap): the predictions are
-        # no better than the cap there, so nothing is moved.
-        return 0
+    none = replay(x64, y_hat, cap), replay(x64, y_half, cap)
+    cands[0].predicted["client_passes"], cands[0].predicted["client_passes_half"] = none
+    deadlock = none[0] > cap
+    if deadlock and none[1] > cap:
+        return 0  # deadlocked toward both: no prediction is better than the cap, so nothing moves
     best, best_p = 0, none
     seen = {}
-    n = 0
     for i in _replay_order(cands, model.shortlist):
         key = (cands[i].A.tobytes(), cands[i].u.tobytes())
         if key in seen:
@@ -189,12 +193,41 @@ def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.
                                        for k in ("client_passes", "client_passes_half")})
             continue
         seen[key] = i
-        p = passes(cands[i], none)
+        p = _candidate_passes(replay, start(cands[i]), y_hat, y_half, best_p, deadlock, cap)
         cands[i].predicted["client_passes"], cands[i].predicted["client_passes_half"] = p
-        # The score is the passes toward the target plus those toward the half-way
-        # point; a candidate must lower it strictly, and must not need more passes
-        # than doing nothing toward the target. Ties go to the earlier candidate
-        # (doing nothing first, the always-replayed ones last).
-        if sum(p) < sum(best_p) and p[0] <= none[0]:
+        if _better(p, best_p, deadlock, cap):
             best, best_p = i, p
     return best
+
+
+def _better(p, q, deadlock, cap) -> bool:
+    """Does a candidate with passes ``p = (toward y_hat, toward half-way)`` beat ``q``?
+
+    Fewer passes toward ``y_hat`` (counts beyond the iteration cap are all alike: a
+    deadlock), then fewer toward the half-way point; equal is not better (ties go to
+    the earlier candidate, doing nothing first). Where doing nothing already deadlocks
+    toward ``y_hat`` (a pile creeping toward its planes: one CD pass per iteration up
+    to the cap), the predictions toward ``y_hat`` say nothing, and the half-way point
+    decides alone: a candidate must need fewer passes there than doing nothing.
+    """
+    if deadlock:
+        return p[1] is not None and p[1] < q[1]
+    return (min(p[0], cap + 1), p[1]) < (min(q[0], cap + 1), q[1])
+
+
+def _candidate_passes(replay, x_def, y_hat, y_half, best_p, deadlock, cap):
+    """A candidate's ``(passes toward y_hat, passes toward half-way)``, each replay cut
+    short where its count can no longer make the candidate `_better` than `best_p`.
+
+    A replay stopped after k iterations that each asked for a CD pass has at least
+    k + 1 passes, so one capped at k iterations is exact up to k passes and above k
+    otherwise; a value that is not needed is None.
+    """
+    if deadlock:
+        return None, replay(x_def, y_half, max(0, best_p[1] - 1))
+    p0 = replay(x_def, y_hat, best_p[0])
+    if p0 > best_p[0]:
+        return p0, None  # loses on the first key whatever the second
+    if p0 == best_p[0]:
+        return p0, replay(x_def, y_half, max(0, best_p[1] - 1))
+    return p0, replay(x_def, y_half, cap)  # the new best: its second key must be exact

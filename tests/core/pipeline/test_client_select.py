@@ -8,7 +8,10 @@ import pytest
 import penfree
 from penfree import Obstacle
 from penfree.core.trust.client import replay_step
-from penfree.core.pipeline.client_select import ClientModel, held_target
+from penfree import constants as K
+from penfree.core.pipeline.client_select import (
+    ClientModel, _better, _replay_order, choose_by_client, corotated_target, held_target,
+)
 from penfree.errors import InputError
 
 #: Two parallel unit segments 20 apart, moving by V per step (nothing near: the
@@ -60,6 +63,80 @@ def test_held_target():
     np.testing.assert_array_equal(y, x_pred)
     y = held_target(x, x_pred, np.array([0.05, 0.5, 0.09]), dhat=0.1, r_q=1.0)
     np.testing.assert_array_equal(y, [[0, 0, 0], [1, 1, 1], [0, 0, 0]])
+
+
+def test_held_target_only_at_rest():
+    """With the last step given, a contact vertex is held only if that step moved it at
+    most CONTACT_REST_STEP contact radii (0.45 dhat): one that moved with what it
+    touches is not held."""
+    x = np.zeros((3, 3))
+    x_pred = np.ones((3, 3))
+    d = np.array([0.05, 0.05, 0.5])  # vertices 0 and 1 in contact (dhat 0.1), 2 free
+    x_prev = np.array([[0.0, 0, 0.04], [0.0, 0, 0.05], [0.0, 0, 0.3]])  # moved 0.04 and 0.05
+    y = held_target(x, x_pred, d, dhat=0.1, r_q=1.0, x_prev=x_prev)
+    assert K.CONTACT_REST_STEP * 0.1 == pytest.approx(0.045)
+    np.testing.assert_array_equal(y, [[0, 0, 0], [1, 1, 1], [1, 1, 1]])
+    # without the last step every contact vertex is held (the rule before the rest gate)
+    np.testing.assert_array_equal(held_target(x, x_pred, d, dhat=0.1, r_q=1.0), [[0, 0, 0], [0, 0, 0], [1, 1, 1]])
+
+
+@pytest.mark.parametrize("p, q, deadlock, expected", [
+    ((3, 9), (4, 1), False, True),      # fewer toward y_hat wins, whatever the half-way count
+    ((4, 2), (4, 3), False, True),      # as many, fewer half-way
+    ((4, 3), (4, 3), False, False),     # a tie goes to the earlier candidate
+    ((5, 1), (4, 9), False, False),
+    ((40, 1), (33, 2), False, True),    # beyond the cap (32) every count is a deadlock, alike
+    ((33, 2), (40, 2), False, False),
+    ((20, 3), (34, 4), True, True),     # doing nothing deadlocks: the half-way point alone
+    ((1, 4), (34, 4), True, False),
+    ((None, 3), (None, 4), True, True),
+], ids=["fewer", "tie-half", "tie", "more", "both-capped", "capped-tie", "deadlock-half", "deadlock-tie",
+        "deadlock-none"])
+def test_better(p, q, deadlock, expected):
+    assert _better(p, q, deadlock, K.DEFAULT_CLIENT_MAX_ITER) is expected
+
+
+@pytest.mark.parametrize("s", [3, 9, 20])
+def test_cut_replays_choose_as_full_replays(s):
+    """The replays cut short where a count can no longer win choose the candidate that
+    full replays of every candidate, compared by `_better`, choose (swinging coil)."""
+    from penfree.core.fit.auto import ranked_candidates
+    from penfree.core.fit import models as fit_models
+    from penfree.core.pipeline.strategy import start_separations, step_target
+    from penfree.core.trust.bounds import scene_arrays
+    from tests._samples import SAMPLES
+
+    seq = penfree.read_sequence(SAMPLES / "swinging_coil.h5")
+    _, E, F = scene_arrays(seq.positions[0], seq.edges, seq.faces)
+    x_prev, x = seq.positions[s - 1], seq.positions[s]
+    x64, x_pred, r_q = step_target(x_prev, x, seq.contact_radius, seq.thickness)
+    d = start_separations(x64, E, F, r_q)
+    model = ClientModel(truncation="isotropic", dhat=seq.contact_radius, edges=seq.edges)
+    _, xp, m, cands = ranked_candidates(x_prev, x, d, r_q=r_q, thickness=seq.thickness, margin=0.1, repeat=True)
+    chosen = choose_by_client(cands, xp, x, m.c, d, model, seq.thickness, r_q)
+
+    rot = next(c for c in cands if c.name == "rigid-repeat")
+    y_hat = held_target(x64, corotated_target(xp, x64, rot.A, rot.u, m.c), d, model.dhat, r_q, x_prev=xp)
+    cap = K.DEFAULT_CLIENT_MAX_ITER
+
+    def full(cand):
+        x_def = np.asarray(fit_models.apply_map(x, cand.D, cand.u, m.c)[0], dtype=np.float64)
+        return tuple(replay_step(x_def, x64, x_pred, y, edges=seq.edges, dhat=model.dhat, thickness=seq.thickness,
+                                 client="own", max_iter=cap)["passes"] for y in (y_hat, 0.5 * (x64 + y_hat)))
+
+    best, best_p = 0, full(cands[0])
+    deadlock = best_p[0] > cap
+    seen = set()
+    for i in [] if deadlock and best_p[1] > cap else _replay_order(cands, model.shortlist):
+        key = (cands[i].A.tobytes(), cands[i].u.tobytes())
+        if key in seen:
+            continue
+        seen.add(key)
+        p = full(cands[i])
+        if _better(p, best_p, deadlock, cap):
+            best, best_p = i, p
+    assert chosen == best
+    assert cands[chosen].predicted["client_passes"] == best_p[0]
 
 
 def test_client_model_validation():
