@@ -31,8 +31,8 @@ always replayed and is the first candidate; a later one replaces the best so far
 only if it needs fewer passes toward ``y_hat``, or as many and fewer toward the
 half-way point (`_better`; ties go to the earlier candidate). Where doing nothing
 itself deadlocks toward ``y_hat`` (replays up to the iteration cap: resting layers
-creeping toward their planes), the half-way point alone decides, and where it
-deadlocks toward both nothing is moved.
+creeping toward their planes), the half-way point alone decides: a candidate must
+reach it in fewer passes than doing nothing, which may deadlock there too.
 """
 
 from __future__ import annotations
@@ -182,8 +182,6 @@ def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.
     none = replay(x64, y_hat, cap), replay(x64, y_half, cap)
     cands[0].predicted["client_passes"], cands[0].predicted["client_passes_half"] = none
     deadlock = none[0] > cap
-    if deadlock and none[1] > cap:
-        return 0  # deadlocked toward both: no prediction is better than the cap, so nothing moves
     best, best_p = 0, none
     seen = {}
     for i in _replay_order(cands, model.shortlist):

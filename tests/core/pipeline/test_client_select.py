@@ -127,7 +127,7 @@ def test_cut_replays_choose_as_full_replays(s):
     best, best_p = 0, full(cands[0])
     deadlock = best_p[0] > cap
     seen = set()
-    for i in [] if deadlock and best_p[1] > cap else _replay_order(cands, model.shortlist):
+    for i in _replay_order(cands, model.shortlist):
         key = (cands[i].A.tobytes(), cands[i].u.tobytes())
         if key in seen:
             continue
