@@ -41,3 +41,23 @@ def test_both_builds_same_bits():
 def test_named_copies_get_their_own_cache_names():
     f = parallel.named(_square_py, "_x_named")
     assert f.__qualname__ == "_x_named" and f.__code__ is _square_py.__code__
+
+
+def test_small_work_runs_the_parallel_build_on_one_thread(monkeypatch):
+    # Below min_work the call runs the parallel build with one thread (its loop body is
+    # the faster code) and gives the serial build's bits; the thread count comes back.
+    a = np.random.default_rng(1).normal(size=50)
+    s, d = np.empty_like(a), np.empty_like(a)
+    _square.serial(a, s)
+    seen = []
+    real = _square.parallel
+
+    def spy(*args):
+        seen.append(numba.get_num_threads())
+        return real(*args)
+
+    before = numba.get_num_threads()
+    monkeypatch.setattr(_square, "parallel", spy)
+    _square(a.size, a, d)
+    np.testing.assert_array_equal(s, d)
+    assert seen == [1] and numba.get_num_threads() == before

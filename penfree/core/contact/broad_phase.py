@@ -22,6 +22,26 @@ is O(n + output), never O(n^2). Two passes (count, then fill) cost 2-4x more
 without storing pairs (`fold_min_sq`, `min_pair_sq`) and filters edge-face pairs
 through certified orientation signs (`edge_face_candidates`).
 
+Row scan (issue 13, A/B in one process against the previous version, same bits):
+the emit-once rule compares stored lower cell corners (`ent_clo`, the same `_cell`
+values: floor is monotone, so cell(max(a, b)) = max(cell(a), cell(b))) instead of
+three divisions per overlapping pair; a self query starts each bucket at its first
+id above the row (`_first_above`: entries are filled in id order); the box test is
+branch-free. Measured together: the scan alone 1.1-1.3x (64K yarn and cloth).
+
+Pruned folds. Before evaluating a pair, the min folds bound its squared distance
+from below by its boxes (`_gap_sq`: per-axis gaps of the primitives, the boxes less
+the inflation on both sides) and skip it when the bound, times ``1 - 1e-9``, exceeds
+every minimum the pair could lower (the chunk's current minima of its vertices, or
+the chunk's global one). The result is bit for bit the unpruned one: such a pair's
+computed distance is above those minima, and min is exact. Rounding: the boxes and
+the gap arithmetic err by a few ulps of the largest box coordinate M, and the
+distance kernels by at most ~1e-12 relative plus ~1e-13 of the pair's extent
+(<= 2 M; `distance` module, tested against exact arithmetic); each gap is therefore
+reduced by 1e-9 M (`_PRUNE_SLACK`) before squaring, ~1e4x what the kernels need.
+`per_vertex_separation` starts its minima at the cap radius**2 (not inf), so pairs
+beyond the radius are skipped from the first pair on.
+
 Cell shape (measured, one process, 1 thread, loaded 2-core machine, 64K scenes):
 cubes against per-axis sizes (2x the median extent along each axis: tiny cells
 across a yarn or a sheet, sparse hashed grids) 42 vs 87 ms rods, 147 vs 164 ms
@@ -51,7 +71,7 @@ import numpy as np
 from numba import njit, prange
 
 from ...errors import InputError
-from .distance import edge_edge_sq, point_edge_sq, point_triangle_sq
+from .distance import _ee, _pe, _pt
 from .orient import segment_may_meet_triangle
 from ..parallel import parallel_kernel
 from ..topology import as_positions, as_topology, sort_segment
@@ -89,6 +109,11 @@ _CAP_SLACK = 1.25
 _CAP_PAD = 64
 #: Row chunks of `min_pair_sq` (each keeps its own minimum; min is exact).
 _GLOBAL_MIN_CHUNKS = 64
+#: The min folds skip a pair whose box bound, times `_PRUNE_REL`, exceeds every minimum
+#: it could lower; the bound's per-axis gaps are reduced by `_PRUNE_SLACK` times the
+#: largest box coordinate. Both are ~1e6x the roundings they cover (module docstring).
+_PRUNE_SLACK = 1e-9
+_PRUNE_REL = 1.0 - 1e-9
 
 
 @njit(cache=True)
@@ -172,11 +197,14 @@ def _build_grid(clo, chi, small, dims, bits, nb, lo, hi):
     # A copy of each box in entry order: the query scans entries of a cell
     # sequentially instead of gathering boxes by index (measured 1.5-2x faster).
     ent_box = np.empty((m, 6))
+    # And its lower cell corner, for the emit-once rule without a division per pair.
+    ent_clo = np.empty((m, 3), dtype=np.int64)
     for j in range(clo.shape[0]):
         if not small[j]:
             continue
         l0, l1, l2 = lo[j, 0], lo[j, 1], lo[j, 2]
         h0, h1, h2 = hi[j, 0], hi[j, 1], hi[j, 2]
+        c0, c1, c2 = clo[j, 0], clo[j, 1], clo[j, 2]
         for z in range(clo[j, 2], chi[j, 2] + 1):
             for y in range(clo[j, 1], chi[j, 1] + 1):
                 base = d0 * y + d01 * z
@@ -194,7 +222,22 @@ def _build_grid(clo, chi, small, dims, bits, nb, lo, hi):
                     ent_box[f, 3] = h0
                     ent_box[f, 4] = h1
                     ent_box[f, 5] = h2
-    return count, ent_key, ent_id, ent_box
+                    ent_clo[f, 0] = c0
+                    ent_clo[f, 1] = c1
+                    ent_clo[f, 2] = c2
+    return count, ent_key, ent_id, ent_box, ent_clo
+
+
+@njit(cache=True, inline="always")
+def _first_above(ids, a, b, i):
+    """The first e in [a, b) with ids[e] > i (ids ascending there), else b."""
+    while a < b:
+        mid = (a + b) >> 1
+        if ids[mid] <= i:
+            a = mid + 1
+        else:
+            b = mid
+    return a
 
 
 @njit(cache=True, inline="always")
@@ -218,16 +261,53 @@ def _adjacent(TA, i, TB, j):
 def _pair_sq(V, TA, i, TB, j):
     # The primitive kinds follow from the index widths (1 = vertex, 2 = edge,
     # 3 = face); only vertex-edge, vertex-face and edge-edge occur.
+    # Coordinates, not (3,) views of V: the scalar kernels are the same arithmetic, and
+    # a view per argument cost a reference count update each (the serial build of the
+    # folds ran 1.6-3.7x slower than the parallel one's loop body, issue 13).
     if TA.shape[1] == 2:
-        return edge_edge_sq(V[TA[i, 0]], V[TA[i, 1]], V[TB[j, 0]], V[TB[j, 1]])
+        a, b, c, d = TA[i, 0], TA[i, 1], TB[j, 0], TB[j, 1]
+        return _ee(V[a, 0], V[a, 1], V[a, 2], V[b, 0], V[b, 1], V[b, 2],
+                   V[c, 0], V[c, 1], V[c, 2], V[d, 0], V[d, 1], V[d, 2])
     if TB.shape[1] == 3:
-        return point_triangle_sq(V[TA[i, 0]], V[TB[j, 0]], V[TB[j, 1]], V[TB[j, 2]])
-    return point_edge_sq(V[TA[i, 0]], V[TB[j, 0]], V[TB[j, 1]])
+        p, a, b, c = TA[i, 0], TB[j, 0], TB[j, 1], TB[j, 2]
+        return _pt(V[p, 0], V[p, 1], V[p, 2], V[a, 0], V[a, 1], V[a, 2],
+                   V[b, 0], V[b, 1], V[b, 2], V[c, 0], V[c, 1], V[c, 2])
+    p, a, b = TA[i, 0], TB[j, 0], TB[j, 1]
+    return _pe(V[p, 0], V[p, 1], V[p, 2], V[a, 0], V[a, 1], V[a, 2], V[b, 0], V[b, 1], V[b, 2])
 
 
 @njit(cache=True, inline="always")
-def _record(mode, i, j, TA, TB, J, pos, lim, V, dmin):
-    """Record the hit (i, j); return 1 if it counts, 0 if the filter of MODE_FILL_EF drops it."""
+def _gap_sq(lx, ly, lz, hx, hy, hz, m0, m1, m2, M0, M1, M2, gap_off):
+    # Per-axis gaps of the primitives (their boxes, less the inflation on both sides
+    # and a rounding slack: gap_off = 2 inflation - slack), squared and summed.
+    s = 0.0
+    g = max(m0 - hx, lx - M0) + gap_off
+    if g > 0.0:
+        s += g * g
+    g = max(m1 - hy, ly - M1) + gap_off
+    if g > 0.0:
+        s += g * g
+    g = max(m2 - hz, lz - M2) + gap_off
+    if g > 0.0:
+        s += g * g
+    return s
+
+
+@njit(cache=True, inline="always")
+def _big_gap_sq(loA, hiA, i, loB, hiB, j, mode, gap_off):
+    if mode != MODE_MIN and mode != MODE_GLOBAL_MIN:
+        return 0.0
+    return _gap_sq(loA[i, 0], loA[i, 1], loA[i, 2], hiA[i, 0], hiA[i, 1], hiA[i, 2],
+                   loB[j, 0], loB[j, 1], loB[j, 2], hiB[j, 0], hiB[j, 1], hiB[j, 2], gap_off)
+
+
+@njit(cache=True, inline="always")
+def _record(mode, i, j, TA, TB, J, pos, lim, V, dmin, lb_sq):
+    """Record the hit (i, j); return 1 if it counts, 0 if the filter of MODE_FILL_EF drops it.
+
+    `lb_sq` (the min modes only): a lower bound of the pair's squared distance from its
+    boxes (`_gap_sq`); a pair that provably cannot lower a minimum is not evaluated.
+    """
     # Inlined (Numba IR), like `_visit_row`: out of line, each call passes its array
     # arguments; inlining measured 1.08x on the certificate path (~450K hits), and
     # 1.2-1.4x for `_visit_row` (issue 13, A/B in one process).
@@ -241,10 +321,19 @@ def _record(mode, i, j, TA, TB, J, pos, lim, V, dmin):
         if pos < lim:  # beyond `lim` a full chunk only counts (see _pairs_pass)
             J[pos] = j
     elif mode == MODE_GLOBAL_MIN:
+        if lb_sq * _PRUNE_REL > dmin[0]:
+            return 1  # the computed distance is above the bound: it cannot lower dmin
         d = _pair_sq(V, TA, i, TB, j)
         if d < dmin[0]:
             dmin[0] = d
     elif mode == MODE_MIN:
+        top = 0.0
+        for a in range(TA.shape[1]):
+            top = max(top, dmin[TA[i, a]])
+        for b in range(TB.shape[1]):
+            top = max(top, dmin[TB[j, b]])
+        if lb_sq * _PRUNE_REL > top:
+            return 1  # cannot lower the minimum of any of the pair's vertices
         d = _pair_sq(V, TA, i, TB, j)
         for a in range(TA.shape[1]):
             v = TA[i, a]
@@ -259,7 +348,7 @@ def _record(mode, i, j, TA, TB, J, pos, lim, V, dmin):
 
 @njit(cache=True, inline="always")
 def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
-               loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box, bigB,
+               loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box, ent_clo, bigB, gap_off,
                J, pos, lim, V, dmin):
     """Visit the partners j of row i; return how many there are.
 
@@ -273,44 +362,57 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
         j0 = i + 1 if self_query else 0
         for j in range(j0, loB.shape[0]):
             if _overlap(loA, hiA, i, loB, hiB, j) and not _adjacent(TA, i, TB, j):
-                n += 1 if mode == MODE_COUNT else _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin)
+                n += 1 if mode == MODE_COUNT else _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin,
+                                                                    _big_gap_sq(loA, hiA, i, loB, hiB, j, mode, gap_off))
         return n
     lx, ly, lz = loA[i, 0], loA[i, 1], loA[i, 2]
     hx, hy, hz = hiA[i, 0], hiA[i, 1], hiA[i, 2]
+    cx, cy, cz = cloA[i, 0], cloA[i, 1], cloA[i, 2]
     for z in range(cloA[i, 2], chiA[i, 2] + 1):
         for y in range(cloA[i, 1], chiA[i, 1] + 1):
             for x in range(cloA[i, 0], chiA[i, 0] + 1):
                 key = x + dims[0] * (y + dims[1] * z)
                 b = _bucket(key, bits)
-                for e in range(boff[b], boff[b + 1]):
+                e0 = boff[b]
+                if self_query:
+                    # A bucket's entries are in ascending id (filled in id order):
+                    # start at the first j > i instead of testing every j <= i.
+                    e0 = _first_above(ent_id, e0, boff[b + 1], i)
+                for e in range(e0, boff[b + 1]):
                     # A dense table has one cell per bucket: no key check needed.
                     if bits >= 0 and ent_key[e] != key:
                         continue
                     j = ent_id[e]
-                    if self_query and j <= i:
+                    # Branch-free (`&`, not `or`): one well-predicted branch per entry
+                    # instead of up to six unpredictable ones (most entries fail).
+                    if not ((lx <= ent_box[e, 3]) & (ent_box[e, 0] <= hx) & (ly <= ent_box[e, 4])
+                            & (ent_box[e, 1] <= hy) & (lz <= ent_box[e, 5]) & (ent_box[e, 2] <= hz)):
                         continue
-                    if (lx > ent_box[e, 3] or ent_box[e, 0] > hx or ly > ent_box[e, 4]
-                            or ent_box[e, 1] > hy or lz > ent_box[e, 5] or ent_box[e, 2] > hz):
-                        continue
-                    # Emit only from the cell holding the intersection's lower corner.
-                    if (_cell(max(lx, ent_box[e, 0]), origin[0], h[0]) != x
-                            or _cell(max(ly, ent_box[e, 1]), origin[1], h[1]) != y
-                            or _cell(max(lz, ent_box[e, 2]), origin[2], h[2]) != z):
+                    # Emit only from the cell holding the intersection's lower corner:
+                    # _cell is monotone, so cell(max(a, b)) = max(cell(a), cell(b)), both
+                    # cells already computed by the same formula (cloA, ent_clo).
+                    if (max(cx, ent_clo[e, 0]) != x or max(cy, ent_clo[e, 1]) != y
+                            or max(cz, ent_clo[e, 2]) != z):
                         continue
                     if _adjacent(TA, i, TB, j):
                         continue
-                    n += 1 if mode == MODE_COUNT else _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin)
+                    lb_sq = 0.0
+                    if mode == MODE_MIN or mode == MODE_GLOBAL_MIN:
+                        lb_sq = _gap_sq(lx, ly, lz, hx, hy, hz, ent_box[e, 0], ent_box[e, 1], ent_box[e, 2],
+                                        ent_box[e, 3], ent_box[e, 4], ent_box[e, 5], gap_off)
+                    n += 1 if mode == MODE_COUNT else _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin, lb_sq)
     for k in range(bigB.shape[0]):
         j = bigB[k]
         if self_query and j <= i:
             continue
         if _overlap(loA, hiA, i, loB, hiB, j) and not _adjacent(TA, i, TB, j):
-            n += 1 if mode == MODE_COUNT else _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin)
+            n += 1 if mode == MODE_COUNT else _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin,
+                                                      _big_gap_sq(loA, hiA, i, loB, hiB, j, mode, gap_off))
     return n
 
 
 def _fill_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                    origin, h, dims, bits, boff, ent_key, ent_id, ent_box, bigB,
+                    origin, h, dims, bits, boff, ent_key, ent_id, ent_box, ent_clo, bigB, gap_off,
                     starts, todo, bstart, blim, counts, J, full, mode, V):
     """One pass over the rows of the chunks marked in `todo`, filling and counting.
 
@@ -332,7 +434,7 @@ def _fill_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
             # once full, the same mode only counts (no slot below a limit of -1)
             n = _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
                            loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box,
-                           bigB, J, pos, -1 if over else lim, V, dmin)
+                           ent_clo, bigB, gap_off, J, pos, -1 if over else lim, V, dmin)
             counts[i] = n
             if not over:
                 if pos + n > lim:
@@ -344,7 +446,7 @@ def _fill_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
 
 
 def _min_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-              origin, h, dims, bits, boff, ent_key, ent_id, ent_box, bigB, V, partial, mode):
+              origin, h, dims, bits, boff, ent_key, ent_id, ent_box, ent_clo, bigB, gap_off, V, partial, mode):
     # Chunk c owns rows [c m / C, (c + 1) m / C) and writes only partial[c]:
     # no shared writes; min is exact, so the result is thread-count independent.
     J = np.empty(0, dtype=np.int64)
@@ -354,7 +456,7 @@ def _min_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
         for i in range(c * m // n_chunks, (c + 1) * m // n_chunks):
             _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
                        loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box,
-                       bigB, J, 0, 0, V, partial[c])
+                       ent_clo, bigB, gap_off, J, 0, 0, V, partial[c])
 
 
 # Serial and parallel builds of the row passes (each row / chunk writes only its own
@@ -388,14 +490,14 @@ def _median_extents(ext):
 
 @njit(cache=True)
 def _sample_counts(rows, mode, V, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                   origin, h, dims, bits, boff, ent_key, ent_id, ent_box, bigB):
+                   origin, h, dims, bits, boff, ent_key, ent_id, ent_box, ent_clo, bigB, gap_off):
     J = np.empty(0, dtype=np.int64)
     dmin = np.empty(0)
     total = 0
     for i in rows:
         total += _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
                             loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box,
-                            bigB, J, 0, -1, V, dmin)
+                            ent_clo, bigB, gap_off, J, 0, -1, V, dmin)
     return total
 
 
@@ -452,7 +554,7 @@ def _pairs_pass(args, n, mode=MODE_FILL, V=None):
 class _Plan:
     """Boxes of both sets on one hashed grid; see the module docstring."""
 
-    def __init__(self, loA, hiA, TA, loB, hiB, TB, self_query):
+    def __init__(self, loA, hiA, TA, loB, hiB, TB, self_query, inflation=0.0):
         self.self_query = bool(self_query)
         self.loA, self.hiA, self.TA = loA, hiA, TA
         self.loB, self.hiB, self.TB = loB, hiB, TB
@@ -464,6 +566,10 @@ class _Plan:
         cornA, extA = _box_stats(loA, hiA)
         cornB, extB = (cornA, extA) if self_query else _box_stats(loB, hiB)
         origin = np.minimum(cornA[0], cornB[0])
+        # The min folds' box bound (`_gap_sq`): boxes are the primitives' inflated by
+        # `inflation` per side; the slack covers every rounding (module docstring).
+        scale = float(max(np.abs(cornA).max(), np.abs(cornB).max()))
+        self.gap_off = 2.0 * float(inflation) - _PRUNE_SLACK * scale
         spans = np.maximum(cornA[1], cornB[1]) - origin
         span = float(spans.max())
         # Per-axis cell sizes: yarn segments are long along the yarn and thin
@@ -497,7 +603,7 @@ class _Plan:
         else:
             bits = max(1, int(np.ceil(np.log2(max(2 * entries, 2)))))
             nb = 1 << bits
-        self.boff, self.ent_key, self.ent_id, self.ent_box = _build_grid(
+        self.boff, self.ent_key, self.ent_id, self.ent_box, self.ent_clo = _build_grid(
             cloB, chiB, smallB, dims, bits, nb, loB, hiB)
         self.origin, self.h, self.dims, self.bits = origin, h, dims, bits
         self.cloA, self.chiA, self.smallA = cloA, chiA, smallA
@@ -514,7 +620,7 @@ class _Plan:
     def _args(self):
         return (self.self_query, self.loA, self.hiA, self.TA, self.cloA, self.chiA, self.smallA,
                 self.loB, self.hiB, self.TB, self.origin, self.h, self.dims, self.bits,
-                self.boff, self.ent_key, self.ent_id, self.ent_box, self.bigB)
+                self.boff, self.ent_key, self.ent_id, self.ent_box, self.ent_clo, self.bigB, self.gap_off)
 
     def pairs(self):
         """(K, 2) int64 rows (i, j), sorted lexicographically.
@@ -683,7 +789,7 @@ def fold_min_sq(x, TA, TB, inflation, partial, self_query):
     """
     loA, hiA = _box_arrays(x, x, TA, inflation)
     loB, hiB = (loA, hiA) if self_query else _box_arrays(x, x, TB, inflation)
-    _Plan(loA, hiA, TA, loB, hiB, TB, self_query).min_sq_into(x, partial)
+    _Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation).min_sq_into(x, partial)
 
 
 def min_pair_sq(x, TA, TB, inflation, self_query) -> float:
@@ -707,7 +813,7 @@ def min_pair_sq(x, TA, TB, inflation, self_query) -> float:
     loA, hiA = _box_arrays(x, x, TA, inflation)
     loB, hiB = (loA, hiA) if self_query else _box_arrays(x, x, TB, inflation)
     partial = np.full((_GLOBAL_MIN_CHUNKS, 1), np.inf)
-    _Plan(loA, hiA, TA, loB, hiB, TB, self_query).min_sq_into(x, partial, MODE_GLOBAL_MIN)
+    _Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation).min_sq_into(x, partial, MODE_GLOBAL_MIN)
     return float(partial.min())
 
 

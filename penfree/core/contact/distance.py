@@ -82,29 +82,26 @@ def point_edge_sq(p, e0, e1):
     return _pe(p[0], p[1], p[2], e0[0], e0[1], e0[2], e1[0], e1[1], e1[2])
 
 
-@njit(cache=True)
-def edge_edge_sq(ea0, ea1, eb0, eb1):
-    """Squared distance between the closed segments ``[ea0, ea1]`` and ``[eb0, eb1]``.
-
-    All arguments (3,) float64. Parallel, collinear and zero-length segments
-    are exact cases of the candidate set (module docstring).
-    """
-    best = _pe(ea0[0], ea0[1], ea0[2], eb0[0], eb0[1], eb0[2], eb1[0], eb1[1], eb1[2])
-    d = _pe(ea1[0], ea1[1], ea1[2], eb0[0], eb0[1], eb0[2], eb1[0], eb1[1], eb1[2])
+@njit(cache=True, inline="always")
+def _ee(ea0x, ea0y, ea0z, ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z):
+    # edge_edge_sq on scalars: callers inside other kernels pass coordinates, not
+    # (3,) views (a view per argument costs a reference count update per call).
+    best = _pe(ea0x, ea0y, ea0z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z)
+    d = _pe(ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z)
     if d < best:
         best = d
-    d = _pe(eb0[0], eb0[1], eb0[2], ea0[0], ea0[1], ea0[2], ea1[0], ea1[1], ea1[2])
+    d = _pe(eb0x, eb0y, eb0z, ea0x, ea0y, ea0z, ea1x, ea1y, ea1z)
     if d < best:
         best = d
-    d = _pe(eb1[0], eb1[1], eb1[2], ea0[0], ea0[1], ea0[2], ea1[0], ea1[1], ea1[2])
+    d = _pe(eb1x, eb1y, eb1z, ea0x, ea0y, ea0z, ea1x, ea1y, ea1z)
     if d < best:
         best = d
-    ux = ea1[0] - ea0[0]
-    uy = ea1[1] - ea0[1]
-    uz = ea1[2] - ea0[2]
-    vx = eb1[0] - eb0[0]
-    vy = eb1[1] - eb0[1]
-    vz = eb1[2] - eb0[2]
+    ux = ea1x - ea0x
+    uy = ea1y - ea0y
+    uz = ea1z - ea0z
+    vx = eb1x - eb0x
+    vy = eb1y - eb0y
+    vz = eb1z - eb0z
     nx = uy * vz - uz * vy
     ny = uz * vx - ux * vz
     nz = ux * vy - uy * vx
@@ -113,9 +110,9 @@ def edge_edge_sq(ea0, ea1, eb0, eb1):
         return best
     # Closest points of the two lines: s = ((b0 - a0) x v) . n / |n|^2,
     # t = ((b0 - a0) x u) . n / |n|^2.
-    wx = eb0[0] - ea0[0]
-    wy = eb0[1] - ea0[1]
-    wz = eb0[2] - ea0[2]
+    wx = eb0x - ea0x
+    wy = eb0y - ea0y
+    wz = eb0z - ea0z
     s = ((wy * vz - wz * vy) * nx + (wz * vx - wx * vz) * ny + (wx * vy - wy * vx) * nz) / n2
     t = ((wy * uz - wz * uy) * nx + (wz * ux - wx * uz) * ny + (wx * uy - wy * ux) * nz) / n2
     if s > 0.0 and s < 1.0 and t > 0.0 and t < 1.0:
@@ -134,26 +131,32 @@ def edge_edge_sq(ea0, ea1, eb0, eb1):
 
 
 @njit(cache=True)
-def point_triangle_sq(p, t0, t1, t2):
-    """Squared distance from point ``p`` to the closed triangle ``(t0, t1, t2)``.
+def edge_edge_sq(ea0, ea1, eb0, eb1):
+    """Squared distance between the closed segments ``[ea0, ea1]`` and ``[eb0, eb1]``.
 
-    All arguments (3,) float64. A degenerate triangle (collinear or repeated
-    corners) is the union of its edges.
+    All arguments (3,) float64. Parallel, collinear and zero-length segments
+    are exact cases of the candidate set (module docstring).
     """
-    px, py, pz = p[0], p[1], p[2]
-    best = _pe(px, py, pz, t0[0], t0[1], t0[2], t1[0], t1[1], t1[2])
-    d = _pe(px, py, pz, t1[0], t1[1], t1[2], t2[0], t2[1], t2[2])
+    return _ee(ea0[0], ea0[1], ea0[2], ea1[0], ea1[1], ea1[2],
+               eb0[0], eb0[1], eb0[2], eb1[0], eb1[1], eb1[2])
+
+
+@njit(cache=True, inline="always")
+def _pt(px, py, pz, t0x, t0y, t0z, t1x, t1y, t1z, t2x, t2y, t2z):
+    # point_triangle_sq on scalars (see _ee).
+    best = _pe(px, py, pz, t0x, t0y, t0z, t1x, t1y, t1z)
+    d = _pe(px, py, pz, t1x, t1y, t1z, t2x, t2y, t2z)
     if d < best:
         best = d
-    d = _pe(px, py, pz, t2[0], t2[1], t2[2], t0[0], t0[1], t0[2])
+    d = _pe(px, py, pz, t2x, t2y, t2z, t0x, t0y, t0z)
     if d < best:
         best = d
-    ux = t1[0] - t0[0]
-    uy = t1[1] - t0[1]
-    uz = t1[2] - t0[2]
-    vx = t2[0] - t0[0]
-    vy = t2[1] - t0[1]
-    vz = t2[2] - t0[2]
+    ux = t1x - t0x
+    uy = t1y - t0y
+    uz = t1z - t0z
+    vx = t2x - t0x
+    vy = t2y - t0y
+    vz = t2z - t0z
     nx = uy * vz - uz * vy
     ny = uz * vx - ux * vz
     nz = ux * vy - uy * vx
@@ -165,9 +168,9 @@ def point_triangle_sq(p, t0, t1, t2):
     # distance to the point t0 + a u + b v itself, which lies in the triangle
     # whenever the test passes, so a sliver (inaccurate n) can only make it
     # too large and the edge candidates then hold the minimum.
-    wx = px - t0[0]
-    wy = py - t0[1]
-    wz = pz - t0[2]
+    wx = px - t0x
+    wy = py - t0y
+    wz = pz - t0z
     a = ((wy * vz - wz * vy) * nx + (wz * vx - wx * vz) * ny + (wx * vy - wy * vx) * nz) / n2
     b = ((uy * wz - uz * wy) * nx + (uz * wx - ux * wz) * ny + (ux * wy - uy * wx) * nz) / n2
     if a > 0.0 and b > 0.0 and a + b < 1.0:
@@ -178,6 +181,16 @@ def point_triangle_sq(p, t0, t1, t2):
         if d < best:
             best = d
     return best
+
+
+@njit(cache=True)
+def point_triangle_sq(p, t0, t1, t2):
+    """Squared distance from point ``p`` to the closed triangle ``(t0, t1, t2)``.
+
+    All arguments (3,) float64. A degenerate triangle (collinear or repeated
+    corners) is the union of its edges.
+    """
+    return _pt(p[0], p[1], p[2], t0[0], t0[1], t0[2], t1[0], t1[1], t1[2], t2[0], t2[1], t2[2])
 
 
 # --- vectorized wrappers ------------------------------------------------------

@@ -22,6 +22,14 @@ from .broad_phase import fold_min_sq
 _PARTIAL_ENTRIES_MAX = 1 << 22
 
 
+def _cap_sq(radius):
+    """The smallest float64 c >= radius**2 with sqrt(c) >= radius (sqrt correctly rounded)."""
+    c = float(radius) * float(radius)
+    while np.sqrt(c) < radius:
+        c = float(np.nextafter(c, np.inf))
+    return c
+
+
 def per_vertex_separation(x, E, F, radius):
     """Per-vertex smallest distance to non-adjacent primitives, capped at `radius`.
 
@@ -55,7 +63,10 @@ def per_vertex_separation(x, E, F, radius):
     # chunks per thread for balance) without changing a single bit.
     n_chunks = max(1, min(REDUCTION_CHUNKS, 4 * numba.get_num_threads(),
                           _PARTIAL_ENTRIES_MAX // max(n, 1)))
-    partial = np.full((n_chunks, n), np.inf)
+    # Minima start at a cap whose root is >= radius instead of inf: the result is
+    # min(sqrt(.), radius), so it is unchanged, and the fold can skip every pair that
+    # provably lies beyond the radius (broad_phase's box bound) from the first pair on.
+    partial = np.full((n_chunks, n), _cap_sq(radius))
     if E.shape[0]:
         fold_min_sq(x, E, E, inflation, partial, self_query=True)
     if F.shape[0]:
