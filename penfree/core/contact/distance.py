@@ -82,10 +82,14 @@ def point_edge_sq(p, e0, e1):
     return _pe(p[0], p[1], p[2], e0[0], e0[1], e0[2], e1[0], e1[1], e1[2])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _ee(ea0x, ea0y, ea0z, ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z):
     # edge_edge_sq on scalars: callers inside other kernels pass coordinates, not
     # (3,) views (a view per argument costs a reference count update per call).
+    # Not IR-inlined (inline="always"), unlike _pe: inlined into every row visit of
+    # the broad phase it made a cold compile of per_vertex_separation take 25 -> ~100+
+    # s (Numba deep-copies the IR per call site); LLVM still inlines it, and the folds
+    # measured within noise of the IR-inlined version (2026-12-01, quiet machine).
     best = _pe(ea0x, ea0y, ea0z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z)
     d = _pe(ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z)
     if d < best:
@@ -141,7 +145,7 @@ def edge_edge_sq(ea0, ea1, eb0, eb1):
                eb0[0], eb0[1], eb0[2], eb1[0], eb1[1], eb1[2])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _pt(px, py, pz, t0x, t0y, t0z, t1x, t1y, t1z, t2x, t2y, t2z):
     # point_triangle_sq on scalars (see _ee).
     best = _pe(px, py, pz, t0x, t0y, t0z, t1x, t1y, t1z)
