@@ -367,3 +367,47 @@ def test_emit_once_rule_on_stored_cells(rng, offset):
         V0 = V if len(VV) == len(V) else np.concatenate([V, V + 1e4])
         np.testing.assert_array_equal(edge_edge_candidates(V0, VV, EE, 0.01),
                                       edge_edge_candidates_brute(V0, VV, EE, 0.01))
+
+
+def _grid_oracle(clo, chi, small, dims, bits, lo, hi):
+    # One (box, cell) entry per covered cell, boxes in id order, stably sorted by bucket.
+    rows = []
+    for j in range(clo.shape[0]):
+        if not small[j]:
+            continue
+        for z in range(clo[j, 2], chi[j, 2] + 1):
+            for y in range(clo[j, 1], chi[j, 1] + 1):
+                for x in range(clo[j, 0], chi[j, 0] + 1):
+                    key = int(x + dims[0] * (y + dims[1] * z))
+                    rows.append((int(bp._bucket(key, bits)), key, j))
+    b, key, ids = (np.array(c, dtype=np.int64) for c in zip(*rows))
+    order = np.argsort(b, kind="stable")
+    return b[order], key[order], ids[order]
+
+
+@pytest.mark.parametrize("sparse", [False, True], ids=["dense", "hashed"])
+@pytest.mark.parametrize("chunks", [1, 2, 3, 7])
+def test_grid_build_is_one_serial_pass_for_any_chunking(rng, sparse, chunks):
+    # The chunked counting sort (one chunk per thread) must lay out the entries as one
+    # serial pass in id order: ids ascending within a bucket, each with its own box.
+    V, E = rods(8, 40, rng)
+    if sparse:
+        V = np.concatenate([V, V + 1e4])
+        E = np.concatenate([E, E + len(V) // 2])
+    V1 = _fast_movers(V, rng, k=3, scale=2.0)  # a few big boxes stay out of the grid
+    lo, hi = bp._box_arrays(V, V1, E, 0.01)
+    plan = bp._Plan(lo, hi, E, lo, hi, E, True)
+    assert (plan.bits >= 0) == sparse and (~plan.smallA).any()
+    nb = plan.boff.size - 1
+    boff, ent_key, ent_id, ent_box, ent_clo = bp._build_grid(
+        plan.cloA, plan.chiA, plan.smallA, plan.dims, plan.bits, nb, lo, hi, chunks=chunks)
+    b, key, ids = _grid_oracle(plan.cloA, plan.chiA, plan.smallA, plan.dims, plan.bits, lo, hi)
+    np.testing.assert_array_equal(boff, np.searchsorted(b, np.arange(nb + 1)))
+    np.testing.assert_array_equal(ent_id, ids)
+    np.testing.assert_array_equal(ent_box, np.hstack([lo, hi])[ids])
+    np.testing.assert_array_equal(ent_clo, plan.cloA[ids])
+    if sparse:
+        np.testing.assert_array_equal(ent_key, key)
+    for name, arr in zip(("boff", "ent_key", "ent_id", "ent_box", "ent_clo"),
+                         (boff, ent_key, ent_id, ent_box, ent_clo)):
+        np.testing.assert_array_equal(getattr(plan, name), arr)
