@@ -15,6 +15,7 @@ import numba
 import numpy as np
 
 from ...constants import REDUCTION_CHUNKS
+from ...errors import InputError
 from ..topology import referenced_vertices
 from .broad_phase import fold_min_sq
 
@@ -41,6 +42,8 @@ def per_vertex_separation(x, E, F, radius):
     F : (K, 3) int64
         Faces; empty for a segment scene.
     radius : float >= 0
+        Finite (an infinite radius would make every box cover the whole space):
+        InputError otherwise.
 
     Returns
     -------
@@ -57,6 +60,9 @@ def per_vertex_separation(x, E, F, radius):
     split into chunks, each with its own row of partial minima, reduced with
     ``min`` (exact): the result does not depend on the number of threads.
     """
+    r = float(radius)
+    if not (np.isfinite(r) and r >= 0.0):
+        raise InputError(f"radius must be finite and >= 0; got {radius}")
     n = x.shape[0]
     inflation = 0.5 * radius
     # min is exact, so the chunk count may follow the thread count (a few

@@ -8,6 +8,7 @@ from penfree.core.contact import broad_phase as bp
 from penfree.core.contact import proximity
 from penfree.core.contact.proximity import per_vertex_separation
 from penfree.core.topology import edges_from_faces, referenced_vertices
+from penfree.errors import InputError
 
 from oracles import ee_sq, pt_sq
 
@@ -81,3 +82,13 @@ def test_matches_exact_brute_force(rng):
 def test_cap_root_is_at_least_the_radius(radius):
     c = proximity._cap_sq(radius)
     assert np.sqrt(c) >= radius and c >= radius * radius
+
+
+@pytest.mark.parametrize("radius", [np.inf, -np.inf, np.nan, -1e-3])
+def test_radius_must_be_finite_and_non_negative(radius):
+    # An infinite radius inflated every box to the whole space and aborted the process
+    # in the grid build; it is now a clear input error, like a negative or NaN one.
+    x = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0.1], [1, 1, 0.1]])
+    E = np.array([[0, 1], [2, 3]], dtype=np.int64)
+    with pytest.raises(InputError, match="radius must be finite"):
+        per_vertex_separation(x, E, np.zeros((0, 3), dtype=np.int64), radius)
