@@ -108,6 +108,8 @@ _SAMPLE_ROWS = 512
 #: Buffer slots per chunk: the sampled pairs per row times this, plus a pad.
 _CAP_SLACK = 1.25
 _CAP_PAD = 64
+#: Box chunks of the plan's reductions (corners, cell ranges).
+_STAT_CHUNKS = 16
 #: Row chunks of `min_pair_sq` (each keeps its own minimum; min is exact).
 _GLOBAL_MIN_CHUNKS = 64
 #: The min folds skip a pair whose box bound, times `_PRUNE_REL`, exceeds every minimum
@@ -117,11 +119,11 @@ _PRUNE_SLACK = 1e-9
 _PRUNE_REL = 1.0 - 1e-9
 
 
-@njit(cache=True)
-def _boxes(V_t0, V_t1, T, inflation, lo, hi):
-    # Serial: memory-bound and ~1 ms at 200K primitives; a parallel launch
-    # costs more than that on a loaded machine.
-    for i in range(T.shape[0]):
+def _boxes_py(V_t0, V_t1, T, inflation, lo, hi):
+    # Each box writes its own rows: both builds give the same bits. Memory-bound,
+    # ~1 ms at 200K primitives serially; below PARALLEL_MIN_WORK boxes the serial
+    # build runs (a parallel launch would cost more on a loaded machine).
+    for i in prange(T.shape[0]):
         for a in range(3):
             mn = np.inf
             mx = -np.inf
@@ -133,10 +135,13 @@ def _boxes(V_t0, V_t1, T, inflation, lo, hi):
             hi[i, a] = mx + inflation
 
 
+_boxes = parallel_kernel(_boxes_py, "_bp_boxes")
+
+
 def _box_arrays(V_t0, V_t1, T, inflation):
     lo = np.empty((T.shape[0], 3))
     hi = np.empty((T.shape[0], 3))
-    _boxes(V_t0, V_t1, T, float(inflation), lo, hi)
+    _boxes(T.shape[0], V_t0, V_t1, T, float(inflation), lo, hi)
     return lo, hi
 
 
@@ -155,22 +160,34 @@ def _bucket(key, bits):
     return np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits))
 
 
-@njit(cache=True)
+def _cell_ranges_py(lo, hi, origin, h, clo, chi, ncell, big_cells, top, n_big):
+    # Cell ranges and cell counts of the boxes; chunk c of STAT_CHUNKS keeps its largest
+    # chi per axis in top[c] and its count of boxes covering more than `big_cells`
+    # cells in n_big[c] (integer max and sum: exact, so any thread count).
+    m = lo.shape[0]
+    C = top.shape[0]
+    for c in prange(C):
+        for i in range(c * m // C, (c + 1) * m // C):
+            n = np.int64(1)
+            for a in range(3):
+                clo[i, a] = _cell(lo[i, a], origin[a], h[a])
+                chi[i, a] = _cell(hi[i, a], origin[a], h[a])
+                n *= chi[i, a] - clo[i, a] + 1
+                top[c, a] = max(top[c, a], chi[i, a])
+            ncell[i] = n
+            n_big[c] += n > big_cells
+
+
+_cell_ranges_k = parallel_kernel(_cell_ranges_py, "_bp_cell_ranges")
+
+
 def _cell_ranges(lo, hi, origin, h, clo, chi, ncell, big_cells):
     """Cell ranges and cell counts of the boxes; returns (largest chi per axis, number
     of boxes covering more than `big_cells` cells)."""
-    top = np.zeros(3, dtype=np.int64)
-    n_big = 0
-    for i in range(lo.shape[0]):
-        n = np.int64(1)
-        for a in range(3):
-            clo[i, a] = _cell(lo[i, a], origin[a], h[a])
-            chi[i, a] = _cell(hi[i, a], origin[a], h[a])
-            n *= chi[i, a] - clo[i, a] + 1
-            top[a] = max(top[a], chi[i, a])
-        ncell[i] = n
-        n_big += n > big_cells
-    return top, n_big
+    top = np.zeros((_STAT_CHUNKS, 3), dtype=np.int64)
+    n_big = np.zeros(_STAT_CHUNKS, dtype=np.int64)
+    _cell_ranges_k(lo.shape[0], lo, hi, origin, h, clo, chi, ncell, big_cells, top, n_big)
+    return top.max(axis=0), int(n_big.sum())
 
 
 def _grid_count_py(clo, chi, small, dims, bits, bounds, counts):
@@ -509,24 +526,36 @@ _fill_chunks = parallel_kernel(_fill_chunks_py, "_bp_fill_chunks", _PARALLEL_MIN
 _min_rows = parallel_kernel(_min_rows_py, "_bp_min_rows", _PARALLEL_MIN_ROWS)
 
 
-@njit(cache=True)
-def _box_stats(lo, hi):
-    corners = np.empty((2, 3))
-    corners[0] = np.inf
-    corners[1] = -np.inf
-    ext = np.empty((lo.shape[0], 3))
-    for i in range(lo.shape[0]):
+def _corners_py(lo, hi, corners):
+    # Chunk c of STAT_CHUNKS keeps its lower and upper corners in corners[c]
+    # (min and max are exact: any thread count gives the same bits).
+    m = lo.shape[0]
+    C = corners.shape[0]
+    for c in prange(C):
         for a in range(3):
-            corners[0, a] = min(corners[0, a], lo[i, a])
-            corners[1, a] = max(corners[1, a], hi[i, a])
-            ext[i, a] = hi[i, a] - lo[i, a]
-    return corners, ext
+            corners[c, 0, a] = np.inf
+            corners[c, 1, a] = -np.inf
+        for i in range(c * m // C, (c + 1) * m // C):
+            for a in range(3):
+                corners[c, 0, a] = min(corners[c, 0, a], lo[i, a])
+                corners[c, 1, a] = max(corners[c, 1, a], hi[i, a])
 
 
-def _median_extents(ext):
-    """(3,) per-axis median of box extents, from a strided sample of <= 32K boxes."""
-    step = max(1, ext.shape[0] // 32768)
-    sample = ext[::step]
+_corners = parallel_kernel(_corners_py, "_bp_corners")
+
+
+def _box_stats(lo, hi):
+    """``(corners (2, 3), ext)``: the boxes' bounding corners and the extents of a
+    strided sample of <= 32K of them (all that `_median_extents` reads)."""
+    parts = np.empty((_STAT_CHUNKS, 2, 3))
+    _corners(lo.shape[0], lo, hi, parts)
+    corners = np.stack([parts[:, 0].min(axis=0), parts[:, 1].max(axis=0)])
+    step = max(1, lo.shape[0] // 32768)
+    return corners, hi[::step] - lo[::step]
+
+
+def _median_extents(sample):
+    """(3,) per-axis median of the sampled box extents (`_box_stats`)."""
     k = sample.shape[0] // 2
     return np.array([np.partition(sample[:, a], k)[k] for a in range(3)])
 
@@ -713,7 +742,9 @@ def _check_vertices(vertices, n):
     idx = np.asarray(vertices)
     if idx.ndim != 1 or not (np.issubdtype(idx.dtype, np.integer) or idx.size == 0):
         raise InputError(f"vertices must be a 1-D integer array; got {idx.dtype} {idx.shape}")
-    idx = np.unique(idx.astype(np.int64))
+    idx = idx.astype(np.int64)
+    if idx.size > 1 and not np.all(idx[1:] > idx[:-1]):
+        idx = np.unique(idx)  # (already strictly ascending, e.g. all vertices: no sort)
     if idx.size and (idx[0] < 0 or idx[-1] >= n):
         raise InputError(f"vertices must lie in [0, {n}); got range [{idx[0]}, {idx[-1]}]")
     return np.ascontiguousarray(idx[:, None])

@@ -33,6 +33,7 @@ import numpy as np
 from numba import njit, prange
 
 from ...errors import InputError
+from ..parallel import parallel_kernel
 
 
 @njit(cache=True, inline="always")
@@ -216,6 +217,42 @@ def _edge_edge_many(EA0, EA1, EB0, EB1, out):
 def _point_triangle_many(P, T0, T1, T2, out):
     for q in prange(P.shape[0]):
         out[q] = np.sqrt(point_triangle_sq(P[q], T0[q], T1[q], T2[q]))
+
+
+def _indexed_distance_py(x, idx, vf, out):
+    for q in prange(idx.shape[0]):
+        a, b, c, d = idx[q, 0], idx[q, 1], idx[q, 2], idx[q, 3]
+        if vf:
+            out[q] = np.sqrt(point_triangle_sq(x[a], x[b], x[c], x[d]))
+        else:
+            out[q] = np.sqrt(edge_edge_sq(x[a], x[b], x[c], x[d]))
+
+
+# Each row writes its own slot: both builds give the same bits (penfree.core.parallel).
+_indexed_distance = parallel_kernel(_indexed_distance_py, "_dist_indexed")
+
+
+def indexed_distance(x, idx, kind) -> np.ndarray:
+    """Distances of pairs given by vertex rows into `x`, without gathering them.
+
+    Parameters
+    ----------
+    x : (N, 3) float64, C-contiguous, finite
+    idx : (K, 4) int64 in [0, N)
+        Rows (p, t0, t1, t2) for ``kind == "vf"``, else (ea0, ea1, eb0, eb1).
+    kind : str
+
+    Returns
+    -------
+    (K,) float64: the same bits as `point_triangle_distance` / `edge_edge_distance` on
+    the gathered rows (the same kernels on the same values). Inputs are assumed
+    validated (the callers' scenes are).
+    """
+    idx = np.ascontiguousarray(idx, dtype=np.int64)
+    out = np.empty(idx.shape[0], dtype=np.float64)
+    if idx.shape[0]:
+        _indexed_distance(idx.shape[0], x, idx, kind == "vf", out)
+    return out
 
 
 def _rows(arrays, names):

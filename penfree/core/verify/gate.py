@@ -74,12 +74,9 @@ def _max_dev_sq(x, x_def, A, b, k):
 
 def _start_distance(x, kind, idx):
     """Distances at `x` of the pairs `idx` (rows p, f0, f1, f2 or ea0, ea1, eb0, eb1)."""
-    from ..contact.distance import edge_edge_distance, point_triangle_distance
+    from ..contact.distance import indexed_distance
 
-    if not len(idx):
-        return np.zeros(0)
-    P = [x[idx[:, c]] for c in range(4)]
-    return point_triangle_distance(*P) if kind == "vf" else edge_edge_distance(*P)
+    return indexed_distance(x, idx, kind)
 
 
 class StepGate:

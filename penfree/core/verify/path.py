@@ -24,7 +24,7 @@ edges merged with the edges of their faces (`penfree.core.topology.scene_edges`)
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from ...constants import CCD_MAX_EXACT, DEFAULT_MAX_PAIRS
 from ...errors import InputError
@@ -36,7 +36,8 @@ from ..contact.broad_phase import (
     vertex_face_candidates_between,
 )
 from ..contact.ccd import SEPARATED, ccd_indexed
-from ..contact.distance import edge_edge_distance, point_triangle_distance
+from ..contact.distance import indexed_distance
+from ..parallel import parallel_kernel
 from ..topology import as_positions, as_topology, scene_edges
 from .result import VerifyResult
 
@@ -135,8 +136,7 @@ def _excuse(pre, kind, ij, idx, X0, X1, ccd_kind, thickness, status, sep):
     if thickness > 0.0 and len(hit):
         near = ccd_indexed(X0, X0, idx[hit], ccd_kind, thickness)[0] != SEPARATED
         rest = hit[near]
-        P = [X0[idx[rest, c]] for c in range(4)]
-        d0 = (point_triangle_distance(*P) if ccd_kind == "vf" else edge_edge_distance(*P)) if len(rest) else np.zeros(0)
+        d0 = indexed_distance(X0, idx[rest], ccd_kind)
         scale = float(np.abs(X0).max()) if X0.size else 0.0
         rest = rest[d0 < thickness * (1.0 - 1e-9) - 1e-12 * scale]
         st, _, sp, _ = ccd_indexed(X0, X1, idx[rest], ccd_kind, 0.0)
@@ -157,10 +157,32 @@ def _self_candidates(body, X0, X1, inflation):
     out = []
     if len(body.E) > 1:
         ee = edge_edge_candidates(X0, X1, body.E, inflation)
-        out.append(("ee", ee, body.E[ee].reshape(-1, 4)))
+        out.append(("ee", ee, pair_rows(body.E, body.E, ee)))
     if len(body.F):
         vf = vertex_face_candidates(X0, X1, body.F, inflation, body.V)
-        out.append(("vf", vf, np.concatenate([vf[:, :1], body.F[vf[:, 1]]], axis=1)))
+        out.append(("vf", vf, pair_rows(body.V[:, None], body.F, vf)))
+    return out
+
+
+def _pair_rows_py(TA, TB, P, out):
+    for k in prange(P.shape[0]):
+        for a in range(TA.shape[1]):
+            out[k, a] = TA[P[k, 0], a]
+        for b in range(TB.shape[1]):
+            out[k, TA.shape[1] + b] = TB[P[k, 1], b]
+
+
+_pair_rows = parallel_kernel(_pair_rows_py, "_path_pair_rows")
+
+
+def pair_rows(TA, TB, P):
+    """(K, wA + wB) int64: the vertex rows ``TA[P[:, 0]] | TB[P[:, 1]]`` of pairs `P`, in
+    one parallel pass (the fancy-indexed gathers were ~5% of a 64K cloth step)."""
+    TA = np.ascontiguousarray(TA, dtype=np.int64)
+    TB = np.ascontiguousarray(TB, dtype=np.int64)
+    out = np.empty((P.shape[0], TA.shape[1] + TB.shape[1]), dtype=np.int64)
+    if P.shape[0]:
+        _pair_rows(P.shape[0], TA, TB, np.ascontiguousarray(P, dtype=np.int64), out)
     return out
 
 
