@@ -404,10 +404,73 @@ def test_grid_build_is_one_serial_pass_for_any_chunking(rng, sparse, chunks):
     b, key, ids = _grid_oracle(plan.cloA, plan.chiA, plan.smallA, plan.dims, plan.bits, lo, hi)
     np.testing.assert_array_equal(boff, np.searchsorted(b, np.arange(nb + 1)))
     np.testing.assert_array_equal(ent_id, ids)
-    np.testing.assert_array_equal(ent_box, np.hstack([lo, hi])[ids])
+    np.testing.assert_array_equal(ent_box, np.hstack([lo, hi])[ids].T)
     np.testing.assert_array_equal(ent_clo, plan.cloA[ids])
     if sparse:
         np.testing.assert_array_equal(ent_key, key)
     for name, arr in zip(("boff", "ent_key", "ent_id", "ent_box", "ent_clo"),
                          (boff, ent_key, ent_id, ent_box, ent_clo)):
         np.testing.assert_array_equal(getattr(plan, name), arr)
+
+
+@pytest.mark.parametrize("kind", ["rods", "folded-cloth", "touching"])
+@pytest.mark.parametrize("hashed", [False, True])
+def test_compacted_scan_finds_the_same_pairs_and_minima(rng, kind, hashed):
+    # The row scan either tests each entry and branches, or compacts a bucket's box
+    # hits first (chosen per plan from a sample of rows, only above a few thousand
+    # rows): both must give the same pairs, edge-face pairs and minima, bit for bit.
+    V, E, F = _scene(kind, rng)
+    if hashed:  # a far copy: sparse, hashed table (buckets mixing cells)
+        V = np.concatenate([V, V + 1e4])
+        F = np.concatenate([F, F + len(V) // 2]) if len(F) else F
+        E = np.concatenate([E, E + len(V) // 2])
+    Q = np.arange(len(V), dtype=np.int64)[:, None]
+    sets = [(E, E, True)] + ([(Q, F, False), (E, F, False)] if len(F) else [])
+    for TA, TB, sq in sets:
+        lo_a, hi_a = bp._box_arrays(V, V, TA, 0.01)
+        lo_b, hi_b = (lo_a, hi_a) if sq else bp._box_arrays(V, V, TB, 0.01)
+        out = []
+        for compact in (False, True):
+            plan = bp._Plan(lo_a, hi_a, TA, lo_b, hi_b, TB, sq, 0.01)
+            assert (plan.bits >= 0) == hashed
+            plan.compact = compact
+            part = np.full((4, len(V)), np.inf)
+            plan.min_sq_into(V, part)
+            ef = plan.edge_face_pairs(V) if TA.shape[1] == 2 and TB.shape[1] == 3 else None
+            out.append((plan.pairs(), part.min(axis=0), ef))
+        np.testing.assert_array_equal(out[0][0], out[1][0])
+        np.testing.assert_array_equal(out[0][1], out[1][1])
+        if out[0][2] is not None:
+            np.testing.assert_array_equal(out[0][2], out[1][2])
+        assert len(out[0][0]) > 0
+    # and the brute force agrees with both (edge pairs)
+    np.testing.assert_array_equal(out[1][0] if not len(F) else bp.edge_edge_candidates(V, V, E, 0.01),
+                                  edge_edge_candidates_brute(V, V, E, 0.01))
+
+
+def _bundle(k=20, per=16, spacing=0.25):
+    # k x k straight rods along z, unit segments, `spacing` apart: thin boxes in cubic
+    # cells sized by the segments' length, so few entries of a bucket hit (like a yarn).
+    gx, gy = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+    base = np.stack([gx.ravel(), gy.ravel()], -1) * spacing
+    z = np.arange(per, dtype=float)
+    V = np.concatenate([np.column_stack([np.full(per, bx), np.full(per, by), z]) for bx, by in base])
+    E = np.array([[r * per + i, r * per + i + 1] for r in range(k * k) for i in range(per - 1)], dtype=np.int64)
+    return V, E
+
+
+def test_plan_chooses_the_compacted_scan_where_few_entries_hit(rng):
+    # A bundle of thin rods (~4% of the scanned entries hit): compacted; wavy rods
+    # (~38%): not. Either way the pairs are the brute force's. Plans below
+    # _COMPACT_MIN_ROWS rows never compact.
+    cases = [(*_bundle(), 0.2, True), (*rods(40, 120, rng), 0.001, False)]
+    for V, E, inflation, compact in cases:
+        lo, hi = bp._box_arrays(V, V, E, inflation)
+        assert len(E) >= bp._COMPACT_MIN_ROWS
+        plan = bp._Plan(lo, hi, E, lo, hi, E, True)
+        assert plan.compact is compact
+        pairs = plan.pairs()
+        assert len(pairs) > 0
+        np.testing.assert_array_equal(pairs, edge_edge_candidates_brute(V, V, E, inflation))
+    small = bp._Plan(lo[:100], hi[:100], E[:100], lo[:100], hi[:100], E[:100], True)
+    assert small.compact is False
