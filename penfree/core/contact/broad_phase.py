@@ -195,9 +195,11 @@ def _cell_ranges(lo, hi, origin, h, clo, chi, ncell, big_cells):
     return top.max(axis=0), int(n_big.sum())
 
 
-def _grid_count_py(clo, chi, small, dims, bits, bounds, counts):
-    # Chunk c counts the entries of boxes [bounds[c], bounds[c + 1]) per bucket into
-    # its own column of `counts` (nb, C): no shared writes.
+def _grid_pass_py(clo, chi, small, dims, bits, lo, hi, bounds, slots, fill, ent_key, ent_id, ent_box, ent_clo):
+    # Chunk c visits the (box, cell) entries of boxes [bounds[c], bounds[c + 1]). Without
+    # `fill` it counts them per bucket into its own column of `slots` (nb, C); with it,
+    # it writes them at its own slots (`slots[:, c]`, from `_grid_offsets`), so the
+    # layout is that of one serial pass in id order. No shared writes either way.
     d0 = dims[0]
     d01 = dims[0] * dims[1]
     for c in prange(bounds.shape[0] - 1):
@@ -208,7 +210,19 @@ def _grid_count_py(clo, chi, small, dims, bits, bounds, counts):
                 for y in range(clo[j, 1], chi[j, 1] + 1):
                     base = d0 * y + d01 * z
                     for x in range(clo[j, 0], chi[j, 0] + 1):
-                        counts[_bucket(base + x, bits), c] += 1
+                        key = base + x
+                        b = _bucket(key, bits)
+                        f = slots[b, c]
+                        slots[b, c] = f + 1
+                        if not fill:
+                            continue
+                        if bits >= 0:
+                            ent_key[f] = key
+                        ent_id[f] = j
+                        for a in range(3):
+                            ent_box[a, f] = lo[j, a]
+                            ent_box[3 + a, f] = hi[j, a]
+                            ent_clo[f, a] = clo[j, a]
 
 
 @njit(cache=True)
@@ -228,42 +242,7 @@ def _grid_offsets(counts):
     return boff
 
 
-def _grid_fill_py(clo, chi, small, dims, bits, lo, hi, bounds, fill, ent_key, ent_id, ent_box, ent_clo):
-    # Chunk c writes its boxes' entries at its own slots (`fill[:, c]`, from
-    # `_grid_offsets`): the layout is that of one serial pass in id order.
-    d0 = dims[0]
-    d01 = dims[0] * dims[1]
-    for c in prange(bounds.shape[0] - 1):
-        for j in range(bounds[c], bounds[c + 1]):
-            if not small[j]:
-                continue
-            l0, l1, l2 = lo[j, 0], lo[j, 1], lo[j, 2]
-            h0, h1, h2 = hi[j, 0], hi[j, 1], hi[j, 2]
-            c0, c1, c2 = clo[j, 0], clo[j, 1], clo[j, 2]
-            for z in range(clo[j, 2], chi[j, 2] + 1):
-                for y in range(clo[j, 1], chi[j, 1] + 1):
-                    base = d0 * y + d01 * z
-                    for x in range(clo[j, 0], chi[j, 0] + 1):
-                        key = base + x
-                        b = _bucket(key, bits)
-                        f = fill[b, c]
-                        fill[b, c] = f + 1
-                        if bits >= 0:
-                            ent_key[f] = key
-                        ent_id[f] = j
-                        ent_box[0, f] = l0
-                        ent_box[1, f] = l1
-                        ent_box[2, f] = l2
-                        ent_box[3, f] = h0
-                        ent_box[4, f] = h1
-                        ent_box[5, f] = h2
-                        ent_clo[f, 0] = c0
-                        ent_clo[f, 1] = c1
-                        ent_clo[f, 2] = c2
-
-
-_grid_count = parallel_kernel(_grid_count_py, "_bp_grid_count")
-_grid_fill = parallel_kernel(_grid_fill_py, "_bp_grid_fill")
+_grid_pass = parallel_kernel(_grid_pass_py, "_bp_grid_pass")
 
 
 def _build_grid(clo, chi, small, dims, bits, nb, lo, hi, chunks=None):
@@ -278,7 +257,9 @@ def _build_grid(clo, chi, small, dims, bits, nb, lo, hi, chunks=None):
     C = chunks if chunks is not None else (numba.get_num_threads() if use_parallel(n) else 1)
     bounds = (np.arange(C + 1, dtype=np.int64) * n) // C
     counts = np.zeros((nb, C), dtype=np.int64)
-    _grid_count(n, clo, chi, small, dims, bits, bounds, counts)
+    none_i, none_f = np.empty(0, dtype=np.int64), np.empty((6, 0))
+    _grid_pass(n, clo, chi, small, dims, bits, lo, hi, bounds, counts, False,
+               none_i, none_i, none_f, np.empty((0, 3), dtype=np.int64))
     boff = _grid_offsets(counts)
     m = int(boff[nb])
     # Keys only for a hashed table: a dense one has one cell per bucket.
@@ -291,7 +272,7 @@ def _build_grid(clo, chi, small, dims, bits, nb, lo, hi, chunks=None):
     ent_box = np.empty((6, m))
     # And its lower cell corner, for the emit-once rule without a division per pair.
     ent_clo = np.empty((m, 3), dtype=np.int64)
-    _grid_fill(n, clo, chi, small, dims, bits, lo, hi, bounds, counts, ent_key, ent_id, ent_box, ent_clo)
+    _grid_pass(n, clo, chi, small, dims, bits, lo, hi, bounds, counts, True, ent_key, ent_id, ent_box, ent_clo)
     return boff, ent_key, ent_id, ent_box, ent_clo
 
 
