@@ -34,7 +34,7 @@ from ..constants import FORMAT_VERSION
 from ..errors import FormatError, InputError
 from ..sequence import Sequence
 from .atomic import atomic_file
-from .hdf5 import GZIP_LEVEL, has_h5_magic, open_h5, read_attrs, read_from_h5, write_attrs, write_to_h5
+from .hdf5 import has_h5_magic, open_h5, read_attrs, read_from_h5, write_attrs, write_positions, write_to_h5
 
 #: Per-step datasets that must be numeric when present (``A`` may be NaN: per-component steps).
 NUMERIC_STEPS = ("A", "b", "deformed", "certificate_margin", "margin_required", "start_gap")
@@ -88,10 +88,7 @@ def _write_array(g, name, value, deformed_dtype=None):
         data = np.array([str(x) for x in a.ravel()], dtype=object).reshape(a.shape)
         g.create_dataset(name, data=data, dtype=h5py.string_dtype("utf-8"))
     elif deformed_dtype is not None:
-        chunks = (1,) + a.shape[1:] if a.size else None
-        g.create_dataset(name, data=a.astype(deformed_dtype, copy=False), chunks=chunks,
-                         compression="gzip" if chunks else None,
-                         compression_opts=GZIP_LEVEL if chunks else None, shuffle=bool(chunks))
+        write_positions(g, name, a, deformed_dtype)
     else:
         g.create_dataset(name, data=a)
 
