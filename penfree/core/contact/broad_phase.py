@@ -105,6 +105,7 @@ _PARALLEL_MIN_ROWS = 2048
 _PAIR_CHUNKS = 256
 _PAIR_CHUNK_MIN_ROWS = 256
 _SAMPLE_ROWS = 512
+_SAMPLE_MIN_STEP = 8
 #: Buffer slots per chunk: the sampled pairs per row times this, plus a pad.
 _CAP_SLACK = 1.25
 _CAP_PAD = 64
@@ -625,7 +626,9 @@ def _pairs_pass(args, n, mode=MODE_FILL, V=None):
     starts = (np.arange(n_chunks + 1, dtype=np.int64) * n) // n_chunks
     # Capacity from a sample of rows (a stride over all of them), with slack; a chunk
     # that still runs out is refilled at exact offsets, so the guess only costs time.
-    step = max(1, n // _SAMPLE_ROWS)
+    # at most 1 row in _SAMPLE_MIN_STEP: a small dense query (every row with hundreds of
+    # partners) would otherwise sample most of its rows before the real pass
+    step = max(_SAMPLE_MIN_STEP, n // _SAMPLE_ROWS)
     sample = np.arange(0, n, step, dtype=np.int64)
     per_row = _sample_counts(sample, mode, V, *args) / sample.size
     caps = np.ceil((starts[1:] - starts[:-1]) * (_CAP_SLACK * per_row + 0.5 * _CAP_SLACK)).astype(np.int64) + _CAP_PAD
@@ -881,6 +884,28 @@ def vertex_face_candidates_between(V_t0, V_t1, vertices, F, inflation=0.0) -> np
         raise InputError("vertices must be given (a 1-D integer array); got None")
     return vertex_face_candidates(V_t0, V_t1, F, inflation, vertices)
 
+
+
+def _pair_rows_py(TA, TB, P, out):
+    for k in prange(P.shape[0]):
+        for a in range(TA.shape[1]):
+            out[k, a] = TA[P[k, 0], a]
+        for b in range(TB.shape[1]):
+            out[k, TA.shape[1] + b] = TB[P[k, 1], b]
+
+
+_pair_rows = parallel_kernel(_pair_rows_py, "_bp_pair_rows")
+
+
+def pair_rows(TA, TB, P):
+    """(K, wA + wB) int64: the vertex rows ``TA[P[:, 0]] | TB[P[:, 1]]`` of pairs `P`, in
+    one parallel pass (the fancy-indexed gathers were ~5% of a 64K cloth step)."""
+    TA = np.ascontiguousarray(TA, dtype=np.int64)
+    TB = np.ascontiguousarray(TB, dtype=np.int64)
+    out = np.empty((P.shape[0], TA.shape[1] + TB.shape[1]), dtype=np.int64)
+    if P.shape[0]:
+        _pair_rows(P.shape[0], TA, TB, np.ascontiguousarray(P, dtype=np.int64), out)
+    return out
 
 
 def fold_min_sq(x, TA, TB, inflation, partial, self_query):

@@ -22,10 +22,11 @@ without ipctk:
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from ...errors import InputError
-from ..contact.broad_phase import edge_edge_candidates, vertex_face_candidates
+from ..parallel import parallel_kernel
+from ..contact.broad_phase import edge_edge_candidates, pair_rows, vertex_face_candidates
 
 #: ipctk ``TrustRegion.relaxed_radius_scaling`` (2 gamma_p with gamma_p = 0.45).
 RELAXED_RADIUS_SCALING = 0.9
@@ -36,6 +37,10 @@ PLANAR_PARALLEL_EPS = 1e-15
 #: Arrival times below this are the stencil's own vertices lying on the plane
 #: up to rounding: no crossing (ipctk).
 PLANAR_T_EPS = 1e-10
+#: The planar ratios run over at most this many chunks of stencils (each with its own
+#: row of ratios, reduced by min), of at least this many stencils each.
+_PLANAR_CHUNKS = 8
+_STENCILS_PER_CHUNK = 4096
 
 KIND_EDGE_EDGE = 0
 KIND_VERTEX_FACE = 1
@@ -222,12 +227,24 @@ def stencil_coefficients(P, kind, coef):
         _pt_coefficients(P, coef)
 
 
+def _planar_ratios_py(x, dx, stencils, kinds, scaling, partial):
+    # Chunk k of the stencils lowers only partial[k] (min is exact: the reduced ratios
+    # do not depend on the chunks or the threads).
+    n_chunks = partial.shape[0]
+    m = stencils.shape[0]
+    for k in prange(n_chunks):
+        _planar_ratios_range(x, dx, stencils, kinds, scaling, partial[k], k * m // n_chunks, (k + 1) * m // n_chunks)
+
+
+_planar_ratios = parallel_kernel(_planar_ratios_py, "_planar_ratios")
+
+
 @njit(cache=True)
-def _planar_ratios(x, dx, stencils, kinds, scaling, ratio):
+def _planar_ratios_range(x, dx, stencils, kinds, scaling, ratio, c0, c1):
     P = np.empty((4, 3))
     D = np.empty((4, 3))
     coef = np.zeros(4)
-    for c in range(stencils.shape[0]):
+    for c in range(c0, c1):
         for j in range(4):
             v = stencils[c, j]
             for k in range(3):
@@ -349,7 +366,9 @@ def planar_filter(x, dx, centers, inflation_radius, stencils, kinds, scaling=REL
                          f"{stencils.shape}, {kinds.shape}")
     ratio = np.ones(x.shape[0])
     if stencils.shape[0]:
-        _planar_ratios(x, dx, stencils, kinds, float(scaling), ratio)
+        partial = np.ones((max(1, min(_PLANAR_CHUNKS, stencils.shape[0] // _STENCILS_PER_CHUNK)), x.shape[0]))
+        _planar_ratios(stencils.shape[0], x, dx, stencils, kinds, float(scaling), partial)
+        ratio = partial.min(axis=0)
     ratio = np.minimum(ratio, ball_ratio(x, dx, centers, float(inflation_radius)))
     trunc = ratio < 1.0
     out = dx.copy()
@@ -381,12 +400,12 @@ def candidate_stencils(x, E, F, radius):
     parts, kinds = [], []
     if E.shape[0]:
         ee = edge_edge_candidates(x, x, E, infl)
-        parts.append(np.concatenate([E[ee[:, 0]], E[ee[:, 1]]], axis=1))
+        parts.append(pair_rows(E, E, ee))
         kinds.append(np.full(ee.shape[0], KIND_EDGE_EDGE))
     if F.shape[0]:
         used = np.unique(F)
         vf = vertex_face_candidates(x, x, F, infl, vertices=used)
-        parts.append(np.concatenate([vf[:, :1], F[vf[:, 1]]], axis=1))
+        parts.append(pair_rows(np.arange(x.shape[0], dtype=np.int64)[:, None], F, vf))
         kinds.append(np.full(vf.shape[0], KIND_VERTEX_FACE))
     if not parts:
         return np.zeros((0, 4), np.int64), np.zeros(0, np.int64)

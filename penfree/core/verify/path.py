@@ -24,7 +24,7 @@ edges merged with the edges of their faces (`penfree.core.topology.scene_edges`)
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from ...constants import CCD_MAX_EXACT, DEFAULT_MAX_PAIRS
 from ...errors import InputError
@@ -32,12 +32,12 @@ from ..contact.broad_phase import (
     edge_edge_candidates,
     edge_face_candidates,
     edge_edge_candidates_between,
+    pair_rows,
     vertex_face_candidates,
     vertex_face_candidates_between,
 )
 from ..contact.ccd import SEPARATED, ccd_indexed
 from ..contact.distance import indexed_distance
-from ..parallel import parallel_kernel
 from ..topology import as_positions, as_topology, scene_edges
 from .result import VerifyResult
 
@@ -161,28 +161,6 @@ def _self_candidates(body, X0, X1, inflation):
     if len(body.F):
         vf = vertex_face_candidates(X0, X1, body.F, inflation, body.V)
         out.append(("vf", vf, pair_rows(body.V[:, None], body.F, vf)))
-    return out
-
-
-def _pair_rows_py(TA, TB, P, out):
-    for k in prange(P.shape[0]):
-        for a in range(TA.shape[1]):
-            out[k, a] = TA[P[k, 0], a]
-        for b in range(TB.shape[1]):
-            out[k, TA.shape[1] + b] = TB[P[k, 1], b]
-
-
-_pair_rows = parallel_kernel(_pair_rows_py, "_path_pair_rows")
-
-
-def pair_rows(TA, TB, P):
-    """(K, wA + wB) int64: the vertex rows ``TA[P[:, 0]] | TB[P[:, 1]]`` of pairs `P`, in
-    one parallel pass (the fancy-indexed gathers were ~5% of a 64K cloth step)."""
-    TA = np.ascontiguousarray(TA, dtype=np.int64)
-    TB = np.ascontiguousarray(TB, dtype=np.int64)
-    out = np.empty((P.shape[0], TA.shape[1] + TB.shape[1]), dtype=np.int64)
-    if P.shape[0]:
-        _pair_rows(P.shape[0], TA, TB, np.ascontiguousarray(P, dtype=np.int64), out)
     return out
 
 
