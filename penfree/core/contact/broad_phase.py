@@ -592,15 +592,16 @@ def _hit_rate(rows, self_query, loA, hiA, cloA, chiA, smallA, dims, bits, boff, 
 @njit(cache=True)
 def _sample_counts(rows, mode, V, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
                    origin, h, dims, bits, boff, ent_key, ent_id, ent_box, ent_clo, hit_cap, compact, bigB, gap_off):
+    """(len(rows),) int64: the partner count of each sampled row."""
     J = np.empty(0, dtype=np.int64)
     dmin = np.empty(0)
     buf = np.empty(hit_cap, dtype=np.int64)
-    total = 0
-    for i in rows:
-        total += _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
+    out = np.empty(rows.shape[0], dtype=np.int64)
+    for k in range(rows.shape[0]):
+        out[k] = _visit_row(mode, rows[k], self_query, loA, hiA, TA, cloA, chiA, smallA,
                             loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box,
                             ent_clo, compact, bigB, gap_off, J, 0, -1, V, dmin, buf)
-    return total
+    return out
 
 
 def _gather_chunks_py(J_buf, bstart, J_buf2, bstart2, starts, counts, offsets, full, P):
@@ -628,9 +629,17 @@ def _pairs_pass(args, n, mode=MODE_FILL, V=None):
     # that still runs out is refilled at exact offsets, so the guess only costs time.
     # at most 1 row in _SAMPLE_MIN_STEP: a small dense query (every row with hundreds of
     # partners) would otherwise sample most of its rows before the real pass
+    # Each chunk's rows are sized by the mean of all sampled rows, or of those inside
+    # it where that is larger (densities differ between parts of a scene: with the
+    # global mean alone every dense chunk refilled; with few samples per chunk alone,
+    # the chunks of a uniform scene did).
     step = max(_SAMPLE_MIN_STEP, n // _SAMPLE_ROWS)
     sample = np.arange(0, n, step, dtype=np.int64)
-    per_row = _sample_counts(sample, mode, V, *args) / sample.size
+    found = _sample_counts(sample, mode, V, *args).astype(np.float64)
+    owner = np.searchsorted(starts, sample, side="right") - 1
+    hits = np.bincount(owner, weights=found, minlength=n_chunks)
+    seen = np.bincount(owner, minlength=n_chunks)
+    per_row = np.maximum(found.mean(), np.where(seen > 0, hits / np.maximum(seen, 1), 0.0))
     caps = np.ceil((starts[1:] - starts[:-1]) * (_CAP_SLACK * per_row + 0.5 * _CAP_SLACK)).astype(np.int64) + _CAP_PAD
     bstart = np.zeros(n_chunks + 1, dtype=np.int64)
     np.cumsum(caps, out=bstart[1:])
