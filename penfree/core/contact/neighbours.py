@@ -56,7 +56,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from .broad_phase import _box_arrays, _Plan
+from .broad_phase import _PRUNE_REL, _PRUNE_SLACK, _box_arrays, _gap_sq, _pair_sq, _Plan
 from .distance import edge_edge_sq, point_triangle_sq
 from ..parallel import parallel_kernel
 from ...errors import InputError
@@ -102,59 +102,55 @@ def _vf_sq_py(x, F, P, out):
         out[k] = point_triangle_sq(x[v], x[F[f, 0]], x[F[f, 1]], x[F[f, 2]])
 
 
-def _gather_min_py(ptr, pid, d2, out):
-    for v in prange(ptr.shape[0] - 1):
-        m = np.inf
-        for e in range(ptr[v], ptr[v + 1]):
-            if d2[pid[e]] < m:
-                m = d2[pid[e]]
-        out[v] = m
+def _listed_min_py(x, TA, TB, P, partial, gap_off):
+    # Chunk c of the pairs (in row order) folds their squared distances into partial[c]
+    # (min is exact: any chunking or thread count gives the same minima). A pair whose
+    # box gap bound (`broad_phase._gap_sq`, reduced by the rounding slack `gap_off`)
+    # provably exceeds every minimum it could lower is skipped, as in the grid's folds.
+    n_chunks = partial.shape[0]
+    m = P.shape[0]
+    for c in prange(n_chunks):
+        dmin = partial[c]
+        for q in range(c * m // n_chunks, (c + 1) * m // n_chunks):
+            i, j = P[q, 0], P[q, 1]
+            top = 0.0
+            for a in range(TA.shape[1]):
+                top = max(top, dmin[TA[i, a]])
+            for b in range(TB.shape[1]):
+                top = max(top, dmin[TB[j, b]])
+            lx, ly, lz, hx, hy, hz = _prim_box(x, TA, i)
+            m0, m1, m2, M0, M1, M2 = _prim_box(x, TB, j)
+            if _gap_sq(lx, ly, lz, hx, hy, hz, m0, m1, m2, M0, M1, M2, gap_off) * _PRUNE_REL > top:
+                continue
+            d = _pair_sq(x, TA, i, TB, j)
+            for a in range(TA.shape[1]):
+                v = TA[i, a]
+                if d < dmin[v]:
+                    dmin[v] = d
+            for b in range(TB.shape[1]):
+                v = TB[j, b]
+                if d < dmin[v]:
+                    dmin[v] = d
 
 
-# Each loop writes only its own slot, so the serial and parallel builds give the
-# same bits; `parallel_kernel` picks one by the size of the work (robust under
+@njit(cache=True, inline="always")
+def _prim_box(x, T, i):
+    v = T[i, 0]
+    lx, ly, lz = x[v, 0], x[v, 1], x[v, 2]
+    hx, hy, hz = lx, ly, lz
+    for a in range(1, T.shape[1]):
+        v = T[i, a]
+        lx, ly, lz = min(lx, x[v, 0]), min(ly, x[v, 1]), min(lz, x[v, 2])
+        hx, hy, hz = max(hx, x[v, 0]), max(hy, x[v, 1]), max(hz, x[v, 2])
+    return lx, ly, lz, hx, hy, hz
+
+
+# Each loop writes only its own slot (or chunk), so the serial and parallel builds give
+# the same bits; `parallel_kernel` picks one by the size of the work (robust under
 # contention: a small region never waits for a descheduled thread).
 _ee_sq = parallel_kernel(_ee_sq_py, "_nl_ee_sq")
 _vf_sq = parallel_kernel(_vf_sq_py, "_nl_vf_sq")
-_gather_min = parallel_kernel(_gather_min_py, "_nl_gather_min")
-
-
-@njit(cache=True)
-def _incidence(n, E, F, P_ee, P_vf):
-    """CSR vertex -> pair (pair ids: ee first, then vf offset by len(P_ee)), counting sort.
-
-    Each pair is entered under the vertices its distance folds into (SPEC section 7):
-    the four vertices of an edge-edge pair, the vertex and the face's three of a
-    vertex-face pair. Within a vertex, pair ids ascend.
-    """
-    count = np.zeros(n + 1, dtype=np.int64)
-    for k in range(P_ee.shape[0]):
-        for a in range(2):
-            count[E[P_ee[k, 0], a] + 1] += 1
-            count[E[P_ee[k, 1], a] + 1] += 1
-    for k in range(P_vf.shape[0]):
-        count[P_vf[k, 0] + 1] += 1
-        for a in range(3):
-            count[F[P_vf[k, 1], a] + 1] += 1
-    for v in range(n):
-        count[v + 1] += count[v]
-    fill = count[:-1].copy()
-    pid = np.empty(count[n], dtype=np.int64)
-    for k in range(P_ee.shape[0]):
-        for a in range(2):
-            for v in (E[P_ee[k, 0], a], E[P_ee[k, 1], a]):
-                pid[fill[v]] = k
-                fill[v] += 1
-    off = P_ee.shape[0]
-    for k in range(P_vf.shape[0]):
-        v = P_vf[k, 0]
-        pid[fill[v]] = off + k
-        fill[v] += 1
-        for a in range(3):
-            v = F[P_vf[k, 1], a]
-            pid[fill[v]] = off + k
-            fill[v] += 1
-    return count, pid
+_listed_min = parallel_kernel(_listed_min_py, "_nl_listed_min")
 
 
 @njit(cache=True)
@@ -387,7 +383,7 @@ class NeighbourList:
             if self.edge_face and E.shape[0]:
                 loE, hiE = _box_arrays(x, x, E, infl)
                 self.P_ef = _Plan(loE, hiE, E, loF, hiF, F, False).pairs()
-        self.ptr, self.pid = _incidence(n, E, F, self.P_ee, self.P_vf)
+        self._V = np.arange(n, dtype=np.int64)[:, None]  # vertex rows of the vf pairs
         self.x_b = x.copy()
         self.x_ref = self.x_b
         self._since = 0
@@ -476,11 +472,18 @@ class NeighbourList:
             from .proximity import per_vertex_separation
 
             return per_vertex_separation(x, self.E, self.F, float(radius))
-        d_ee, d_vf = self.pair_sq(x)
-        d2 = np.concatenate([d_ee, d_vf])
-        out = np.empty(x.shape[0])
-        _gather_min(self.pid.size, self.ptr, self.pid, d2, out)
-        return np.minimum(np.sqrt(out), float(radius))
+        from .proximity import _cap_sq, partial_chunks
+
+        # minima from the cap radius**2 (as `per_vertex_separation`): pairs beyond the
+        # radius are pruned from the first pair on, and the capped result is the same
+        n = x.shape[0]
+        partial = np.full((partial_chunks(n), n), _cap_sq(radius))
+        gap_off = -_PRUNE_SLACK * (float(np.abs(x).max()) if x.size else 0.0)
+        if self.P_ee.shape[0]:
+            _listed_min(self.P_ee.shape[0], x, self.E, self.E, self.P_ee, partial, gap_off)
+        if self.P_vf.shape[0]:
+            _listed_min(self.P_vf.shape[0], x, self._V, self.F, self.P_vf, partial, gap_off)
+        return np.minimum(np.sqrt(partial.min(axis=0)), float(radius))
 
     def pairs(self, x, radius) -> dict:
         """Listed pairs, a superset of the pairs within `radius` at `x`.

@@ -31,6 +31,13 @@ def _cap_sq(radius):
     return c
 
 
+def partial_chunks(n) -> int:
+    """Rows of per-chunk partial minima for `n` vertices: min is exact, so the chunk
+    count may follow the thread count (a few chunks per thread for balance) without
+    changing a single bit; capped at `_PARTIAL_ENTRIES_MAX` entries."""
+    return max(1, min(REDUCTION_CHUNKS, 4 * numba.get_num_threads(), _PARTIAL_ENTRIES_MAX // max(n, 1)))
+
+
 def per_vertex_separation(x, E, F, radius):
     """Per-vertex smallest distance to non-adjacent primitives, capped at `radius`.
 
@@ -65,10 +72,7 @@ def per_vertex_separation(x, E, F, radius):
         raise InputError(f"radius must be finite and >= 0; got {radius}")
     n = x.shape[0]
     inflation = 0.5 * radius
-    # min is exact, so the chunk count may follow the thread count (a few
-    # chunks per thread for balance) without changing a single bit.
-    n_chunks = max(1, min(REDUCTION_CHUNKS, 4 * numba.get_num_threads(),
-                          _PARTIAL_ENTRIES_MAX // max(n, 1)))
+    n_chunks = partial_chunks(n)
     # Minima start at a cap whose root is >= radius instead of inf: the result is
     # min(sqrt(.), radius), so it is unchanged, and the fold can skip every pair that
     # provably lies beyond the radius (broad_phase's box bound) from the first pair on.

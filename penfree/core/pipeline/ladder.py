@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from ...constants import DEFAULT_GAMMA, DEFAULT_REPLAY_CAP
-from ..trust.stats import ratio_stats, replay_passes, residual_summary
+from ..trust.stats import StepBounds, ratio_stats, replay_passes, residual_summary
 from ..trust.summary import finite_mean
 from .strategy import start_separations, step_target
 
@@ -124,7 +124,9 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
     T, S = positions.shape[0], frames.shape[0]
     margins = np.zeros(S) if margins is None else np.asarray(margins, dtype=np.float64)
     if bounds_fn is None:
-        bounds_fn = _scene_bounds(edges, faces, thickness, gamma)
+        # one neighbour list per step, built at its start: the models' deformed states
+        # are affine images of it and are answered from the list (`StepBounds`)
+        bounds_fn = StepBounds.for_scene(positions[0], edges, faces, thickness, gamma)
     names = ["baseline", *models, *(["x_pred"] if ceiling else [])]
     fitter = _LadderFit(positions, models, edges=edges, faces=faces, thickness=thickness, weights=weights,
                         projection=projection, gamma=gamma, fit_fn=fit_fn, components=components)
@@ -136,9 +138,12 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
         x_prev, x = positions[s - 1], positions[s]
         x64, x_pred, r_q = step_target(x_prev, x, contact_radius, thickness)
         x_next = np.asarray(positions[s + 1], dtype=np.float64) if s + 1 < T else None
+        if hasattr(bounds_fn, "begin_step"):
+            bounds_fn.begin_step(x64, r_q)
         states = {"baseline": (x64, 0.0, math.nan)}
         for m in models:
-            name, states[m] = fitter.fit(m, x_prev, x, x64, r_q, float(margins[i]))
+            name, states[m] = fitter.fit(m, x_prev, x, x64, r_q, float(margins[i]),
+                                         separations=getattr(bounds_fn, "separations", None))
             used[m][name] = used[m].get(name, 0) + 1
         if ceiling:
             states["x_pred"] = (x_pred, math.nan, math.nan)
@@ -150,17 +155,6 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
     return {"models": names, "n_steps": int(S), "n_steps_next": n_next,
             "rows": [_row(m, per[m], used[m]) for m in names], "steps": per,
             "auto_best_rate": _auto_best_rate(per, models)}
-
-
-def _scene_bounds(edges, faces, thickness, gamma):
-    """``bounds_fn(x, r_q)``: the trust-region bounds of this topology."""
-    from ..trust.bounds import trust_region_bounds
-
-    def bounds_fn(x, r_q):
-        return trust_region_bounds(x, edges=edges, faces=faces, thickness=thickness, gamma=gamma,
-                                   query_radius=r_q)
-
-    return bounds_fn
 
 
 class _LadderFit:
@@ -191,8 +185,11 @@ class _LadderFit:
                 self.fit_fn(self.positions[s - 1], self.positions[s], weights=self.weights, model=m,
                             projection=self.projection, margin=0.0)
 
-    def fit(self, m, x_prev, x, x64, r_q, margin):
-        """``(name used, (x_def float64, fit ms, certificate margin))``; a margin >= 1 fits a translation."""
+    def fit(self, m, x_prev, x, x64, r_q, margin, separations=None):
+        """``(name used, (x_def float64, fit ms, certificate margin))``; a margin >= 1 fits a translation.
+
+        `separations(x, r_q)`, when given, answers `auto`'s start separations (the same
+        values as a fresh query; the bounds provider's list, `StepBounds`)."""
         model, mg = (m, margin) if margin < 1.0 else ("translation", 0.0)
         if model == "per-component":
             from .components import per_component_step
@@ -204,7 +201,9 @@ class _LadderFit:
         elif self.select and model == "auto":
             from ..fit.auto import select_step
 
-            d_start = start_separations(x64, self.E, self.F, r_q)  # the simulator's last detection: not fit time
+            known = None if separations is None else separations(x64, r_q)
+            # the simulator's last detection: not fit time
+            d_start = start_separations(x64, self.E, self.F, r_q, known=known)
             t0 = time.perf_counter()
             r, _ = select_step(x_prev, x, d_start, r_q=r_q, thickness=self.thickness, gamma=self.gamma,
                                weights=self.weights, margin=mg, projection=self.projection)

@@ -250,26 +250,71 @@ def _unpack(source, deformed, frames, edges, faces, thickness, contact_radius=No
             list(obstacles or ()))
 
 
-def listed_bounds(positions, edges, faces, thickness, gamma):
-    """``bounds_fn(x, r_q)``: `trust_region_bounds` over one reused `NeighbourList`.
+#: Skin of a step's neighbour list (`StepBounds`), relative to the step's query radius:
+#: reaches every affine image of the start whose smallest singular value is >= 0.91.
+STEP_SKIN_REL = 0.1
 
-    The bounds equal `trust_region_bounds` bit for bit (`penfree.core.contact.neighbours`);
-    the list is shared by all states a report visits (x, x_def, replay states).
+
+class StepBounds:
+    """``bounds(x, r_q)``: `trust_region_bounds` of the scene's own pairs, bit for bit,
+    from one neighbour list per step.
+
+    `begin_step` builds the list at the step's start `x` with a skin of `STEP_SKIN_REL`
+    times r_q. A later state of the step is answered from the list when the list
+    provably holds every pair within r_q there (`NeighbourList.reach`: the affine images
+    of `x`, i.e. the deformed states of the ladder's maps and of a result, need about
+    r_q / sigma_min), any other state (the prediction, replay states) by a fresh
+    query that leaves the list alone. Without `begin_step` every query is fresh.
+
+    Attributes
+    ----------
+    info : dict
+        ``listed`` and ``fresh`` queries answered, ``builds``.
     """
-    from ..contact.neighbours import NeighbourList
-    from .bounds import _radius, scene_arrays
 
-    _, E, F = scene_arrays(np.asarray(positions[0]), edges, faces)
-    nl = NeighbourList(E, F)
-    h = _radius(thickness, "thickness")
-    gamma = _radius(gamma, "gamma")
+    def __init__(self, E, F, thickness, gamma):
+        from .bounds import _radius
 
-    def bounds_fn(x, r_q):
-        d = nl.separations(np.ascontiguousarray(x, dtype=np.float64), r_q)
-        return gamma * np.maximum(0.0, d - h)
+        self.E, self.F = E, F
+        self.h = _radius(thickness, "thickness")
+        self.gamma = _radius(gamma, "gamma")
+        self.nl = None
+        self.info = {"listed": 0, "fresh": 0, "builds": 0}
 
-    bounds_fn.neighbours = nl
-    return bounds_fn
+    @classmethod
+    def for_scene(cls, x, edges, faces, thickness, gamma):
+        from .bounds import scene_arrays
+
+        _, E, F = scene_arrays(np.asarray(x), edges, faces)
+        return cls(E, F, thickness, gamma)
+
+    def begin_step(self, x, r_q):
+        """Build the step's list at its start `x` (a no-op for r_q <= 0: no query then)."""
+        from ..contact.neighbours import NeighbourList
+
+        self.nl = None
+        if r_q > 0 and (self.E.shape[0] > 1 or self.F.shape[0]):
+            self.nl = NeighbourList(self.E, self.F, skin=STEP_SKIN_REL * float(r_q))
+            self.nl.ensure(np.ascontiguousarray(x, dtype=np.float64), float(r_q), need_list=True)
+            self.info["builds"] += 1
+
+    def separations(self, x, r_q):
+        """Per-vertex separations at `x` capped at `r_q`, as `per_vertex_separation`."""
+        return self._separations(np.ascontiguousarray(x, dtype=np.float64), r_q)
+
+    def _separations(self, x, r_q):
+        nl = self.nl
+        if nl is not None and nl.reach(x, r_q, nl.x_b) <= nl.r_b:
+            self.info["listed"] += 1
+            return nl.separations(x, r_q)
+        from ..contact.proximity import per_vertex_separation
+
+        self.info["fresh"] += 1
+        return per_vertex_separation(x, self.E, self.F, float(r_q))
+
+    def __call__(self, x, r_q):
+        d = self._separations(np.ascontiguousarray(x, dtype=np.float64), r_q)
+        return self.gamma * np.maximum(0.0, d - self.h)
 
 
 def compute_stats(source=None, *, positions=None, deformed=None, frames=None, edges=None, faces=None,
@@ -332,8 +377,8 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
             def bounds_fn(x, r_q):
                 return trust_region_bounds(x, edges=edges, faces=faces, thickness=thickness, gamma=gamma,
                                            query_radius=r_q, obstacles=obstacles, frame=frame_now[0])
-        else:  # the scene's own pairs only: one neighbour list serves every state the report visits
-            bounds_fn = listed_bounds(positions, edges, faces, thickness, gamma)
+        else:  # the scene's own pairs only: one neighbour list per step serves x and x_def
+            bounds_fn = StepBounds.for_scene(positions[0], edges, faces, thickness, gamma)
 
     T, N = positions.shape[0], positions.shape[1]
     S = frames.shape[0]
@@ -353,6 +398,8 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
         r_q = query_radius(x, x_pred, contact_distance(contact_radius, thickness))
         out["query_radius"][i] = r_q
         frame_now[0] = int(f)
+        if hasattr(bounds_fn, "begin_step"):
+            bounds_fn.begin_step(x, r_q)
 
         def bounds_at(z, r_q=r_q):
             # r_q = 0 (no motion, no thickness): every d_v = 0, no CD query needed.

@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 
 from penfree.constants import DEFAULT_GAMMA
 from penfree.core.trust.stats import (
+    StepBounds,
     QUANTILES,
     R_HIST_EDGES,
     compute_stats,
@@ -396,3 +397,39 @@ def test_compute_stats_positions_keyword_and_relabelling(rng):
     b = run(pos[:, perm], inv[edges], deformed[:, perm])
     for k in a:
         np.testing.assert_allclose(a[k], b[k], rtol=1e-12, atol=0, err_msg=k)
+
+
+@pytest.mark.parametrize("kind", ["rods", "cloth"])
+def test_step_bounds_answer_affine_images_from_the_list_bit_for_bit(rng, kind):
+    # One neighbour list per step (built at the start x): the affine images of x (the
+    # ladder's maps, a result's x_def) come from it, any other state (the prediction)
+    # from a fresh query; every answer is trust_region_bounds' bit for bit.
+    from penfree.core.trust.bounds import trust_region_bounds
+
+    pos, topo = _rod_scene(rng, n=40) if kind == "rods" else _cloth_scene(rng, m=9)
+    kw = {"edges": topo} if kind == "rods" else {"faces": topo}
+    sb = StepBounds.for_scene(pos[0], kw.get("edges"), kw.get("faces"), 0.01, DEFAULT_GAMMA)
+    x, x_prev = pos[2].astype(np.float64), pos[1].astype(np.float64)
+    r_q = 0.01 + float(np.linalg.norm(x - x_prev, axis=1).max()) + 0.05
+    c, th = x.mean(axis=0), 0.4
+    R = np.array([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0], [0.0, 0.0, 1.0]])
+    states = {
+        "start": (x, "listed"),
+        "rotated": ((x - c) @ R.T + c + [0.3, -0.2, 0.1], "listed"),
+        "sheared": (x @ np.array([[1.0, 0.02, 0.0], [0.0, 1.0, 0.01], [0.0, 0.0, 1.0]]).T, "listed"),
+        "shrunk by half": (0.5 * (x - c) + c, "fresh"),  # sigma_min 0.5: beyond the skin
+        "prediction": (2.0 * x - x_prev + 0.02 * rng.normal(size=x.shape), "fresh"),
+    }
+    sb.begin_step(x, r_q)
+    for name, (z, how) in states.items():
+        before = dict(sb.info)
+        got = sb(z, r_q)
+        ref = trust_region_bounds(z, thickness=0.01, gamma=DEFAULT_GAMMA, query_radius=r_q, **kw)
+        np.testing.assert_array_equal(got, ref, err_msg=name)
+        assert sb.info[how] == before[how] + 1, name
+        assert (ref < DEFAULT_GAMMA * (r_q - 0.01)).any(), name  # some pair within reach
+    assert sb.info["builds"] == 1
+    # without begin_step, or with r_q = 0, every query is fresh and still exact
+    sb2 = StepBounds.for_scene(pos[0], kw.get("edges"), kw.get("faces"), 0.01, DEFAULT_GAMMA)
+    np.testing.assert_array_equal(sb2(x, r_q), trust_region_bounds(x, thickness=0.01, query_radius=r_q, **kw))
+    assert sb2.info == {"listed": 0, "fresh": 1, "builds": 0}
