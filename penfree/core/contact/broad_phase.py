@@ -376,23 +376,30 @@ def _record(mode, i, j, TA, TB, J, pos, lim, V, dmin, lb_sq):
         if d < dmin[0]:
             dmin[0] = d
     elif mode == MODE_MIN:
-        top = 0.0
-        for a in range(TA.shape[1]):
-            top = max(top, dmin[TA[i, a]])
-        for b in range(TB.shape[1]):
-            top = max(top, dmin[TB[j, b]])
-        if lb_sq * _PRUNE_REL > top:
-            return 1  # cannot lower the minimum of any of the pair's vertices
-        d = _pair_sq(V, TA, i, TB, j)
-        for a in range(TA.shape[1]):
-            v = TA[i, a]
-            if d < dmin[v]:
-                dmin[v] = d
-        for b in range(TB.shape[1]):
-            v = TB[j, b]
-            if d < dmin[v]:
-                dmin[v] = d
+        fold_pair_min(V, TA, i, TB, j, dmin, lb_sq)
     return 1
+
+
+@njit(cache=True, inline="always")
+def fold_pair_min(V, TA, i, TB, j, dmin, lb_sq):
+    """Lower the per-vertex minima `dmin` of the pair's vertices by its squared distance,
+    unless its lower bound `lb_sq` (times `_PRUNE_REL`) proves that it cannot lower any."""
+    top = 0.0
+    for a in range(TA.shape[1]):
+        top = max(top, dmin[TA[i, a]])
+    for b in range(TB.shape[1]):
+        top = max(top, dmin[TB[j, b]])
+    if lb_sq * _PRUNE_REL > top:
+        return
+    d = _pair_sq(V, TA, i, TB, j)
+    for a in range(TA.shape[1]):
+        v = TA[i, a]
+        if d < dmin[v]:
+            dmin[v] = d
+    for b in range(TB.shape[1]):
+        v = TB[j, b]
+        if d < dmin[v]:
+            dmin[v] = d
 
 
 @njit(cache=True, inline="always")

@@ -56,7 +56,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from .broad_phase import _PRUNE_REL, _PRUNE_SLACK, _box_arrays, _gap_sq, _pair_sq, _Plan
+from .broad_phase import _PRUNE_SLACK, _box_arrays, _gap_sq, _Plan, fold_pair_min
 from .distance import edge_edge_sq, point_triangle_sq
 from ..parallel import parallel_kernel
 from ...errors import InputError
@@ -113,24 +113,9 @@ def _listed_min_py(x, TA, TB, P, partial, gap_off):
         dmin = partial[c]
         for q in range(c * m // n_chunks, (c + 1) * m // n_chunks):
             i, j = P[q, 0], P[q, 1]
-            top = 0.0
-            for a in range(TA.shape[1]):
-                top = max(top, dmin[TA[i, a]])
-            for b in range(TB.shape[1]):
-                top = max(top, dmin[TB[j, b]])
             lx, ly, lz, hx, hy, hz = _prim_box(x, TA, i)
             m0, m1, m2, M0, M1, M2 = _prim_box(x, TB, j)
-            if _gap_sq(lx, ly, lz, hx, hy, hz, m0, m1, m2, M0, M1, M2, gap_off) * _PRUNE_REL > top:
-                continue
-            d = _pair_sq(x, TA, i, TB, j)
-            for a in range(TA.shape[1]):
-                v = TA[i, a]
-                if d < dmin[v]:
-                    dmin[v] = d
-            for b in range(TB.shape[1]):
-                v = TB[j, b]
-                if d < dmin[v]:
-                    dmin[v] = d
+            fold_pair_min(x, TA, i, TB, j, dmin, _gap_sq(lx, ly, lz, hx, hy, hz, m0, m1, m2, M0, M1, M2, gap_off))
 
 
 @njit(cache=True, inline="always")
