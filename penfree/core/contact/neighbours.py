@@ -45,10 +45,15 @@ no list is kept (in the 64K reference recordings a vertex moves about a query ra
 per step, and that is what happens: benchmarks/bench_neighbours.py, BENCHMARKS.md).
 `NeighbourList.info` reports the skin, the builds, reuses and fresh queries.
 
-Parallel and deterministic: the pair distances are evaluated in a ``prange`` over pairs,
-each writing its own slot, and folded into vertices by a ``prange`` over vertices that
-gathers over a vertex -> pair incidence (CSR, built once per list with a counting sort):
-no shared writes, and ``min`` is exact, so results do not depend on the thread count.
+Parallel and deterministic: a listed query folds the listed pairs' squared distances
+into per-chunk minima (a ``prange`` over chunks of the row-ordered pairs, each with its
+own row of minima, reduced by ``min``), skipping a pair whose box gap at the query state
+provably exceeds every minimum it could lower, as the grid's folds do (`broad_phase`:
+the same bound and rounding slack, so the minima are those of every pair). No shared
+writes, and ``min`` is exact, so results do not depend on the thread count. (Evaluating
+every listed pair and gathering per vertex cost 49 ms per query on the 64K yarn, 2.3M
+pairs; the pruned fold 26 ms.) `StepBounds` (`penfree.core.trust.stats`) keeps one list
+per step for the deformed states of a report.
 """
 
 from __future__ import annotations
