@@ -36,7 +36,8 @@ from .atomic import atomic_file
 H5_MAGIC = b"\x89HDF\r\n\x1a\n"
 #: Attributes with a meaning of their own; everything else is carried in ``Sequence.attrs``.
 RESERVED_ATTRS = ("penfree_format", "dt", "thickness", "contact_radius", "source")
-#: gzip level 4 + shuffle: float frames shrink ~2x at a small fraction of the write time.
+#: gzip level 4 + shuffle: smooth float frames shrink ~2x, noisy ones much less (17% on
+#: the 64K reference recordings; level 1 saves little time, BENCHMARKS.md).
 GZIP_LEVEL = 4
 #: Frame datasets of at least this many frames are compressed by a thread pool of at
 #: most this many threads (`write_positions`).
@@ -349,14 +350,14 @@ def write_positions(g, name, positions, dtype=None) -> None:
     with ThreadPoolExecutor(max_workers=workers) as pool:
         # written in frame order, at most 2 x workers frames in flight: memory stays a
         # few compressed frames, however long the sequence
-        pending = deque()
+        pending = deque()  # (frame, its compression), in frame order
         for t in range(data.shape[0]):
-            pending.append(pool.submit(_shuffled_deflate, data[t]))
-            if len(pending) >= 2 * workers:
-                dset.id.write_direct_chunk((t - len(pending) + 1, 0, 0), pending.popleft().result())
-        first = data.shape[0] - len(pending)
-        for k, fut in enumerate(pending):
-            dset.id.write_direct_chunk((first + k, 0, 0), fut.result())
+            pending.append((t, pool.submit(_shuffled_deflate, data[t])))
+            if len(pending) == 2 * workers:
+                t0, blob = pending.popleft()
+                dset.id.write_direct_chunk((t0, 0, 0), blob.result())
+        for t0, blob in pending:
+            dset.id.write_direct_chunk((t0, 0, 0), blob.result())
 
 
 def write_to_h5(f: h5py.File, seq: Sequence) -> None:

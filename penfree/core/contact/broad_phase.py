@@ -290,6 +290,14 @@ def _first_above(ids, a, b, i):
 
 
 @njit(cache=True, inline="always")
+def _entry_overlaps(ent_box, e, lx, ly, lz, hx, hy, hz):
+    """Whether grid entry e's box overlaps the box (lx..hx, ly..hy, lz..hz); branch-free
+    (`&`, not `or`: one branch for the caller instead of up to six unpredictable ones)."""
+    return ((lx <= ent_box[3, e]) & (ent_box[0, e] <= hx) & (ly <= ent_box[4, e])
+            & (ent_box[1, e] <= hy) & (lz <= ent_box[5, e]) & (ent_box[2, e] <= hz))
+
+
+@njit(cache=True, inline="always")
 def _overlap(loA, hiA, i, loB, hiB, j):
     for a in range(3):
         if loA[i, a] > hiB[j, a] or loB[j, a] > hiA[i, a]:
@@ -444,16 +452,11 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
                 if compact:
                     nq = 0
                     for e in range(e0, e1):
-                        ok = ((lx <= ent_box[3, e]) & (ent_box[0, e] <= hx) & (ly <= ent_box[4, e])
-                              & (ent_box[1, e] <= hy) & (lz <= ent_box[5, e]) & (ent_box[2, e] <= hz))
                         buf[nq] = e
-                        nq += ok
+                        nq += _entry_overlaps(ent_box, e, lx, ly, lz, hx, hy, hz)
                 for q in range(nq):
                     e = buf[q] if compact else e0 + q
-                    # Branch-free (`&`, not `or`): one branch per entry instead of up
-                    # to six unpredictable ones (most entries fail).
-                    if not compact and not ((lx <= ent_box[3, e]) & (ent_box[0, e] <= hx) & (ly <= ent_box[4, e])
-                                            & (ent_box[1, e] <= hy) & (lz <= ent_box[5, e]) & (ent_box[2, e] <= hz)):
+                    if not compact and not _entry_overlaps(ent_box, e, lx, ly, lz, hx, hy, hz):
                         continue
                     # A dense table has one cell per bucket: no key check needed.
                     if bits >= 0 and ent_key[e] != key:
@@ -590,9 +593,8 @@ def _hit_rate(rows, self_query, loA, hiA, cloA, chiA, smallA, dims, bits, boff, 
                     e0 = _first_above(ent_id, boff[b], boff[b + 1], i) if self_query else boff[b]
                     for e in range(e0, boff[b + 1]):
                         scanned += 1
-                        hits += ((loA[i, 0] <= ent_box[3, e]) & (ent_box[0, e] <= hiA[i, 0])
-                                 & (loA[i, 1] <= ent_box[4, e]) & (ent_box[1, e] <= hiA[i, 1])
-                                 & (loA[i, 2] <= ent_box[5, e]) & (ent_box[2, e] <= hiA[i, 2]))
+                        hits += _entry_overlaps(ent_box, e, loA[i, 0], loA[i, 1], loA[i, 2],
+                                                hiA[i, 0], hiA[i, 1], hiA[i, 2])
     return scanned, hits
 
 
@@ -634,12 +636,12 @@ def _pairs_pass(args, n, mode=MODE_FILL, V=None):
     starts = (np.arange(n_chunks + 1, dtype=np.int64) * n) // n_chunks
     # Capacity from a sample of rows (a stride over all of them), with slack; a chunk
     # that still runs out is refilled at exact offsets, so the guess only costs time.
-    # at most 1 row in _SAMPLE_MIN_STEP: a small dense query (every row with hundreds of
-    # partners) would otherwise sample most of its rows before the real pass
-    # Each chunk's rows are sized by the mean of all sampled rows, or of those inside
-    # it where that is larger (densities differ between parts of a scene: with the
-    # global mean alone every dense chunk refilled; with few samples per chunk alone,
-    # the chunks of a uniform scene did).
+    # At most 1 row in _SAMPLE_MIN_STEP is sampled: a small dense query (every row with
+    # hundreds of partners) would otherwise sample most of its rows before the real
+    # pass. Each chunk's rows are sized by the mean of all sampled rows, or of those
+    # inside it where that is larger (densities differ between parts of a scene: with
+    # the global mean alone every dense chunk refilled; with few samples per chunk
+    # alone, the chunks of a uniform scene did).
     step = max(_SAMPLE_MIN_STEP, n // _SAMPLE_ROWS)
     sample = np.arange(0, n, step, dtype=np.int64)
     found = _sample_counts(sample, mode, V, *args).astype(np.float64)

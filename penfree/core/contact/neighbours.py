@@ -462,18 +462,16 @@ class NeighbourList:
             from .proximity import per_vertex_separation
 
             return per_vertex_separation(x, self.E, self.F, float(radius))
-        from .proximity import _cap_sq, partial_chunks
+        from .proximity import capped_separations, start_minima
 
-        # minima from the cap radius**2 (as `per_vertex_separation`): pairs beyond the
-        # radius are pruned from the first pair on, and the capped result is the same
-        n = x.shape[0]
-        partial = np.full((partial_chunks(n), n), _cap_sq(radius))
+        # minima from the cap, as `per_vertex_separation`: the same capped result
+        partial = start_minima(x.shape[0], radius)
         gap_off = -_PRUNE_SLACK * (float(np.abs(x).max()) if x.size else 0.0)
         if self.P_ee.shape[0]:
             _listed_min(self.P_ee.shape[0], x, self.E, self.E, self.P_ee, partial, gap_off)
         if self.P_vf.shape[0]:
             _listed_min(self.P_vf.shape[0], x, self._V, self.F, self.P_vf, partial, gap_off)
-        return np.minimum(np.sqrt(partial.min(axis=0)), float(radius))
+        return capped_separations(partial, radius)
 
     def pairs(self, x, radius) -> dict:
         """Listed pairs, a superset of the pairs within `radius` at `x`.

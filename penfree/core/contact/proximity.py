@@ -38,6 +38,18 @@ def partial_chunks(n) -> int:
     return max(1, min(REDUCTION_CHUNKS, 4 * numba.get_num_threads(), _PARTIAL_ENTRIES_MAX // max(n, 1)))
 
 
+def start_minima(n, radius) -> np.ndarray:
+    """(chunks, n) per-chunk partial minima of squared distances, each at the cap
+    radius**2 (`_cap_sq`) instead of inf: the result is min(sqrt(.), radius), so it is
+    unchanged, and a fold can skip every pair that provably lies beyond the radius."""
+    return np.full((partial_chunks(n), n), _cap_sq(radius))
+
+
+def capped_separations(partial, radius) -> np.ndarray:
+    """(n,) ``min(radius, sqrt(min over the chunks))`` of `start_minima`'s rows."""
+    return np.minimum(np.sqrt(partial.min(axis=0)), float(radius))
+
+
 def per_vertex_separation(x, E, F, radius):
     """Per-vertex smallest distance to non-adjacent primitives, capped at `radius`.
 
@@ -72,16 +84,12 @@ def per_vertex_separation(x, E, F, radius):
         raise InputError(f"radius must be finite and >= 0; got {radius}")
     n = x.shape[0]
     inflation = 0.5 * radius
-    n_chunks = partial_chunks(n)
-    # Minima start at a cap whose root is >= radius instead of inf: the result is
-    # min(sqrt(.), radius), so it is unchanged, and the fold can skip every pair that
-    # provably lies beyond the radius (broad_phase's box bound) from the first pair on.
-    partial = np.full((n_chunks, n), _cap_sq(radius))
+    # from the cap: pairs beyond the radius are skipped from the first pair on
+    partial = start_minima(n, radius)
     if E.shape[0]:
         fold_min_sq(x, E, E, inflation, partial, self_query=True)
     if F.shape[0]:
         used = referenced_vertices(n, F, E)
         Q = np.ascontiguousarray(np.flatnonzero(used).astype(np.int64)[:, None])
         fold_min_sq(x, Q, F, inflation, partial, self_query=False)
-    d = np.sqrt(partial.min(axis=0))
-    return np.minimum(d, radius)
+    return capped_separations(partial, radius)

@@ -315,8 +315,7 @@ class StepBounds:
         return per_vertex_separation(x, self.E, self.F, float(r_q))
 
     def __call__(self, x, r_q):
-        d = self._separations(np.ascontiguousarray(x, dtype=np.float64), r_q)
-        return self.gamma * np.maximum(0.0, d - self.h)
+        return self.gamma * np.maximum(0.0, self.separations(x, r_q) - self.h)
 
 
 def compute_stats(source=None, *, positions=None, deformed=None, frames=None, edges=None, faces=None,
@@ -399,8 +398,6 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
         r_q = query_radius(x, x_pred, contact_distance(contact_radius, thickness))
         out["query_radius"][i] = r_q
         frame_now[0] = int(f)
-        if hasattr(bounds_fn, "begin_step"):
-            bounds_fn.begin_step(x, r_q)
 
         def bounds_at(z, r_q=r_q):
             # r_q = 0 (no motion, no thickness): every d_v = 0, no CD query needed.
