@@ -8,6 +8,8 @@ deformed state of the step (x moved by the step's affine fit toward x_pred, as
 report visits x_def):
 
 - ``fresh``: `per_vertex_separation` from scratch every query;
+- ``reach``: a `SeparationQuery` for the whole run: each query at the reach of the
+  last one's largest separation, the vertices left at it completed (same values);
 - ``lists``: one `NeighbourList` for the whole run (automatic skin);
 - ``lists skin=k r``: fixed skins, to show the trade-off;
 - ``ipctk``: ``Candidates.build(mesh, x, r_q / 2)`` + ``compute_per_vertex_safe_distances``
@@ -31,6 +33,7 @@ import numpy as np
 
 from penfree.core.fit.models import fit_moments
 from penfree.core.contact.neighbours import NeighbourList
+from penfree.core.contact.proximity import SeparationQuery
 from penfree.core.trust.stats import query_radius
 from penfree.core.trust.bounds import per_vertex_separation, scene_arrays
 
@@ -80,6 +83,11 @@ def main(argv=None):
         per_vertex_separation(qs[0][0][:64], E[:0], F[:0], 0.0)  # JIT outside the timings
         t_fresh, ref = run(lambda x, r: per_vertex_separation(x, E, F, r), qs)
         rows = [("fresh", t_fresh, "")]
+        sq = SeparationQuery(E, F)
+        t, res = run(sq, qs)
+        same = all(np.array_equal(a, b) for a, b in zip(res, ref))
+        rows.append(("reach", t, f"below the radius {sq.info['reached']} of {sq.info['queries']}, "
+                                 f"completed {sq.info['completed']} vertices, equal {same}"))
         methods = [("lists (auto)", None)] + [(f"lists skin={k:g} r", k) for k in args.skins]
         r_max = max(r for _, r in qs)
         for name, k in methods:

@@ -293,6 +293,7 @@ class NeighbourList:
         self.x_ref = None  # state the motion is measured from (x_b, or the last query)
         self._since = 0  # queries since x_ref
         self._growth = np.nan  # reach growth per query, from the recent motion
+        self._query = None
         self.info = {"queries": 0, "builds": 0, "reused": 0, "fresh": 0, "skin": np.nan,
                      "build_radius": np.nan, "n_pairs": 0, "growth": np.nan}
 
@@ -459,9 +460,11 @@ class NeighbourList:
         if self.n is None:
             self.n = x.shape[0]
         if self.ensure(x, radius) == "fresh":
-            from .proximity import per_vertex_separation
+            from .proximity import SeparationQuery
 
-            return per_vertex_separation(x, self.E, self.F, float(radius))
+            if self._query is None:  # fresh queries, each at the reach of the last
+                self._query = SeparationQuery(self.E, self.F)
+            return self._query(x, float(radius))
         from .proximity import capped_separations, start_minima
 
         # minima from the cap, as `per_vertex_separation`: the same capped result

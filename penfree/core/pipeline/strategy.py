@@ -27,6 +27,7 @@ import numpy as np
 
 from ...constants import MODELS, SHORTEN_LEVELS
 from ...errors import InputError
+from ..contact.proximity import SeparationQuery
 from ..fit.certificate import certified_margin
 from ..verify.gate import StepGate
 from ..trust.stats import contact_distance, query_radius
@@ -144,13 +145,16 @@ class Auto:
         self.projection, self.thickness = projection, thickness
         self.client_model = client_model
         self.d_start = d_start  # per-vertex scene separations the caller already has (predeform's bounds)
+        self.query = SeparationQuery(self.E, self.F)  # each step at the reach of the last
         self.tables = [None] * n_steps
 
     def outcomes(self, step: StepInput):
         from ..fit.auto import candidate_result, candidate_table, rank, ranked_candidates
 
         d_start = start_separations(step.x64, self.E, self.F, step.r_q, obstacles=self.obstacles, s=step.s,
-                                    known=self.d_start)
+                                    known=self.d_start, query=self.query)
+        if self.d_start is None:  # our own query (obstacles only lower it): the gate may trust it
+            step.gate.use_separations(d_start)
         t0 = time.perf_counter()
         x, x_prev, m, cands = ranked_candidates(step.x_prev, step.x, d_start, r_q=step.r_q,
                                                 thickness=self.thickness, weights=step.weights,
@@ -249,15 +253,20 @@ def step_target(x_prev, x, contact_radius, thickness) -> tuple:
     return x64, x_pred, query_radius(x64, x_pred, contact_distance(contact_radius, thickness))
 
 
-def start_separations(x64, E, F, r_q, *, obstacles=(), s=None, known=None) -> np.ndarray:
+def start_separations(x64, E, F, r_q, *, obstacles=(), s=None, known=None, query=None) -> np.ndarray:
     """(N,) float64: per-vertex separations at `x64` capped at `r_q`, the ``d_start`` of `auto`.
 
-    `known` replaces the scene term when the caller already has it; obstacles (at frame
-    `s`) lower it. Computed before an `auto` fit is timed: the simulator's last detection.
+    `known` replaces the scene term when the caller already has it; else `query` (a
+    `SeparationQuery` of the scene, the same values) or a fresh `per_vertex_separation`
+    answers it. Obstacles (at frame `s`) lower it. Computed before an `auto` fit is timed:
+    the simulator's last detection.
     """
     from ..trust.bounds import obstacle_separation, per_vertex_separation
 
-    d_start = per_vertex_separation(x64, E, F, r_q) if known is None else np.minimum(known, r_q)
+    if known is not None:
+        d_start = np.minimum(known, r_q)
+    else:
+        d_start = per_vertex_separation(x64, E, F, r_q) if query is None else query(x64, r_q)
     if obstacles:
         d_start = np.minimum(d_start, obstacle_separation(x64, E, F, obstacles, r_q, s))
     return d_start

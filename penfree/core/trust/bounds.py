@@ -99,7 +99,7 @@ def _mesh_separation(x, E, F, ob, radius, s):
 
 
 def trust_region_bounds(x, *, edges=None, faces=None, thickness=0.0, gamma=DEFAULT_GAMMA,
-                        query_radius=None, obstacles=None, frame=0) -> np.ndarray:
+                        query_radius=None, obstacles=None, frame=0, query=None) -> np.ndarray:
     """Per-vertex OGC trust-region bounds ``b_v = gamma * max(0, d_v - thickness)``.
 
     Parameters
@@ -125,6 +125,10 @@ def trust_region_bounds(x, *, edges=None, faces=None, thickness=0.0, gamma=DEFAU
         vertex resting on the floor gets a small bound, as in the simulator.
     frame : int
         Frame at which kinematic obstacles are taken.
+    query : `penfree.core.contact.proximity.SeparationQuery`, optional
+        Answers the scene's separations (the same values; for consecutive states of
+        one scene, each query at the reach of the last one's). Must be of this
+        scene's topology (`scene_arrays`).
 
     Returns
     -------
@@ -154,7 +158,7 @@ def trust_region_bounds(x, *, edges=None, faces=None, thickness=0.0, gamma=DEFAU
         r_q = thickness + DEFAULT_RADIUS_FRACTION * diag
     else:
         r_q = _radius(query_radius, "query_radius")
-    d = per_vertex_separation(x, E, F, r_q)
+    d = per_vertex_separation(x, E, F, r_q) if query is None else query(x, r_q)
     if obstacles:
         d = np.minimum(d, obstacle_separation(x, E, F, obstacles, r_q, frame))
     return gamma * np.maximum(0.0, d - thickness)

@@ -35,7 +35,8 @@ from .planar import (
     KIND_EDGE_EDGE, KIND_VERTEX_FACE, RELAXED_RADIUS_SCALING, ball_ratio, candidate_stencils, isotropic_filter,
     planar_filter,
 )
-from .bounds import per_vertex_separation, scene_arrays
+from ..contact.proximity import SeparationQuery
+from .bounds import scene_arrays
 
 TRUNCATIONS = ("isotropic", "planar")
 RADIUS_RULES = ("own", "step")
@@ -116,6 +117,7 @@ class OwnClient:
         self.dhat, self.thickness, self.truncation = float(dhat), float(thickness), truncation
         self.R = 2.0 * self.dhat
         self.n = np.asarray(V).shape[0]
+        self.query = SeparationQuery(self.E, self.F)  # each pass at the reach of the last
 
     def set_radius(self, R):
         self.R = float(R)
@@ -123,7 +125,7 @@ class OwnClient:
     def update(self, x):
         x = np.ascontiguousarray(x, dtype=np.float64)
         self.centers = x.copy()
-        d = per_vertex_separation(x, self.E, self.F, self.R)
+        d = self.query(x, self.R)
         self.radii = 0.5 * RELAXED_RADIUS_SCALING * np.maximum(0.0, d - self.thickness)
         if self.truncation == "planar":
             self.stencils, self.kinds = candidate_stencils(x, self.E, self.F, self.R + self.thickness)

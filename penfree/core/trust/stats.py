@@ -281,6 +281,7 @@ class StepBounds:
         self.h = _radius(thickness, "thickness")
         self.gamma = _radius(gamma, "gamma")
         self.nl = None
+        self.query = None  # fresh queries, each at the reach of the last (`SeparationQuery`)
         self.info = {"listed": 0, "fresh": 0, "builds": 0}
 
     @classmethod
@@ -309,10 +310,12 @@ class StepBounds:
         if nl is not None and nl.reach(x, r_q, nl.x_b) <= nl.r_b:
             self.info["listed"] += 1
             return nl.separations(x, r_q)
-        from ..contact.proximity import per_vertex_separation
+        from ..contact.proximity import SeparationQuery
 
         self.info["fresh"] += 1
-        return per_vertex_separation(x, self.E, self.F, float(r_q))
+        if self.query is None:
+            self.query = SeparationQuery(self.E, self.F)
+        return self.query(x, float(r_q))
 
     def __call__(self, x, r_q):
         return self.gamma * np.maximum(0.0, self.separations(x, r_q) - self.h)
@@ -374,11 +377,16 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
     if bounds_fn is None:
         # Fresh queries: with two states per step, a step's neighbour list (`StepBounds`,
         # the model ladder's) measured 0.82-1.09x (64K cloth and yarn, 12 frames).
-        from .bounds import trust_region_bounds
+        # Each at the reach of the last state's separations (`SeparationQuery`).
+        from ..contact.proximity import SeparationQuery
+        from .bounds import scene_arrays, trust_region_bounds
+
+        query = SeparationQuery(*scene_arrays(positions[0], edges, faces)[1:])
 
         def bounds_fn(x, r_q):
             return trust_region_bounds(x, edges=edges, faces=faces, thickness=thickness, gamma=gamma,
-                                       query_radius=r_q, obstacles=obstacles or None, frame=frame_now[0])
+                                       query_radius=r_q, obstacles=obstacles or None, frame=frame_now[0],
+                                       query=query)
 
     T, N = positions.shape[0], positions.shape[1]
     S = frames.shape[0]

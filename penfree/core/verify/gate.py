@@ -100,7 +100,27 @@ class StepGate:
         self.obstacles = list(obstacles or ())
         self.frame = int(frame)
         self._near, self._near_radius = None, 0.0
+        self._separations = None
         self.has_topology = (edges is not None and len(edges) > 0) or (faces is not None and len(faces) > 0)
+
+    def use_separations(self, d):
+        """Let the near-pair query skip the primitives that are in no near pair.
+
+        `d` : (N,) float64, the scene's per-vertex separations at the gate's `x`
+        (`per_vertex_separation` at any radius, e.g. `auto`'s start separations, or
+        lower values). A pair's distance is one of its vertices' terms, so a pair within
+        the query radius R has only vertices with ``d < R``: the query searches just the
+        primitives made of those (`near_pairs` with `keep`) and finds the same pairs
+        within R, so every verdict is the same. Not used when a vertex is in no
+        primitive (it has pairs with faces that no separation records).
+        """
+        from ..topology import referenced_vertices
+        from .path import _Body
+
+        body = _Body(self.x, self.x, self.edges, self.faces, "scene")
+        d = np.asarray(d, dtype=np.float64)
+        if d.shape == (self.x.shape[0],) and referenced_vertices(self.x.shape[0], body.F, body.E).all():
+            self._separations = d
 
     def near(self, reach):
         """``[(kind, ij, idx, d0)]``: the pairs within at least `reach` at the start, with
@@ -111,8 +131,9 @@ class StepGate:
             from .pairs import near_pairs
 
             self._near_radius = max(reach, NEAR_FIRST_FACTOR * self.thickness)
+            keep = None if self._separations is None else self._separations < self._near_radius
             self._near = [(kind, ij, idx, _start_distance(self.x, kind, idx))
-                          for kind, ij, idx in near_pairs(self.x, self.edges, self.faces, self._near_radius)]
+                          for kind, ij, idx in near_pairs(self.x, self.edges, self.faces, self._near_radius, keep)]
         return self._near
 
     def passes(self, x_def, maps) -> bool:

@@ -7,20 +7,51 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..contact.broad_phase import edge_edge_candidates, pair_rows, vertex_face_candidates
 from .path import _Body, _Collector, _inflation, _narrow, _pairs_self, _self_candidates, _start_check
 
 
-def near_pairs(x, edges, faces, radius):
+def near_pairs(x, edges, faces, radius, keep=None):
     """The scene's own pairs that may lie within `radius` of each other at `x` (one query).
+
+    Parameters
+    ----------
+    x : (N, 3) float
+    edges, faces : topology or None
+    radius : float >= 0
+    keep : (N,) bool, optional
+        Vertices that may be in a pair within `radius`; only primitives all of whose
+        vertices are kept are searched. The caller must know that the others are not:
+        a vertex whose per-vertex separation (`per_vertex_separation`, every vertex in
+        a primitive) is at least `radius` is in no such pair, since each pair's
+        distance is one of its vertices' terms (`StepGate.use_separations`).
 
     Returns
     -------
     list of (kind, ij, idx)
         Candidates of the static broad phase with boxes inflated by half the radius
-        (a superset of the pairs closer than it), in the form `check_pairs` takes.
+        (a superset of the pairs closer than it), in the form `check_pairs` takes;
+        with `keep`, those among the kept primitives (same indices: ``ij`` into the
+        scene's edges, vertices and faces).
     """
     body = _Body(x, x, edges, faces, "scene")
-    return _self_candidates(body, body.x_t0, body.x_t0, _inflation(radius, body.x_t0))
+    infl = _inflation(radius, body.x_t0)
+    if keep is None:
+        return _self_candidates(body, body.x_t0, body.x_t0, infl)
+    X = body.x_t0
+    out = []
+    e = np.flatnonzero(keep[body.E].all(axis=1)) if len(body.E) else np.zeros(0, np.int64)
+    if e.size > 1:
+        Ek = np.ascontiguousarray(body.E[e])
+        ee = edge_edge_candidates(X, X, Ek, infl)
+        out.append(("ee", e[ee], pair_rows(Ek, Ek, ee)))
+    f = np.flatnonzero(keep[body.F].all(axis=1)) if len(body.F) else np.zeros(0, np.int64)
+    if f.size:
+        Fk = np.ascontiguousarray(body.F[f])
+        vf = vertex_face_candidates(X, X, Fk, infl, body.V[keep[body.V]])
+        ij = np.stack([vf[:, 0], f[vf[:, 1]]], axis=1)
+        out.append(("vf", ij, pair_rows(body.V[:, None], Fk, vf)))
+    return out
 
 
 def check_pairs(pairs, x_t0, x_t1, thickness) -> bool:

@@ -92,3 +92,101 @@ def test_radius_must_be_finite_and_non_negative(radius):
     E = np.array([[0, 1], [2, 3]], dtype=np.int64)
     with pytest.raises(InputError, match="radius must be finite"):
         per_vertex_separation(x, E, np.zeros((0, 3), dtype=np.int64), radius)
+
+
+def _bundle(rng, strands=6, n=40, spacing=0.012, offset=0.0):
+    # Parallel wavy strands (segment chains), closer to each other than an edge length.
+    t = np.linspace(0.0, 1.0, n)
+    V, E = [], []
+    for k in range(strands):
+        c = np.array([spacing * (k % 3), spacing * (k // 3), 0.0])
+        P = np.stack([0.004 * np.sin(9 * t + k), 0.004 * np.cos(7 * t + k), t], 1) + c
+        E.append(np.stack([np.arange(n - 1), np.arange(1, n)], 1) + k * n)
+        V.append(P + rng.normal(scale=1e-4, size=P.shape))
+    return np.ascontiguousarray(np.concatenate(V) + offset), np.concatenate(E).astype(np.int64)
+
+
+def _scenes(rng, offset):
+    V, F = _sheet(14, rng)
+    V = V + offset
+    Vb, Eb = _bundle(rng, offset=offset)
+    none = np.zeros((0, 3), dtype=np.int64)
+    # a lone segment far away and a vertex in no primitive: both at the radius
+    Vb = np.concatenate([Vb, Vb[:2] + 5.0, Vb[:1] - 5.0])
+    Eb = np.concatenate([Eb, [[Vb.shape[0] - 3, Vb.shape[0] - 2]]])
+    # Two tips over a large triangle: a tip's term is its vertex-face distance to the
+    # triangle (the edges are far apart), which the triangle's vertices get from the
+    # nearer tip (6): the far tip (3) is completed while the triangle's vertices are not.
+    Vt = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0.3, 0.3, 0.05], [0.3, 0.5, 0.4], [0.5, 0.3, 0.4],
+                   [0.05, 0.05, 0.01], [0.05, 0.25, 0.35], [0.25, 0.05, 0.35]]) + offset
+    Ft = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]], dtype=np.int64)
+    return {"sheet": (V, edges_from_faces(F), F), "bundle": (Vb, Eb, none), "tip": (Vt, edges_from_faces(Ft), Ft)}
+
+
+@pytest.mark.parametrize("scene", ["sheet", "bundle", "tip"])
+@pytest.mark.parametrize("offset", [0.0, 3e2], ids=["near-origin", "far-from-origin"])
+@pytest.mark.parametrize("complete_max", [1.0, proximity.COMPLETE_MAX], ids=["restricted", "default"])
+def test_reach_gives_the_same_bits(rng, monkeypatch, scene, offset, complete_max):
+    # Below, at and above the largest separation: the vertices at the reach are completed
+    # by the restricted folds (every vertex with complete_max = 1) and the result is the
+    # query at the full radius, bit for bit.
+    monkeypatch.setattr(proximity, "COMPLETE_MAX", complete_max)
+    V, E, F = _scenes(rng, offset)[scene]
+    radius = 0.2 if scene == "tip" else 0.05
+    want = per_vertex_separation(V, E, F, radius)
+    top = want[want < radius].max()
+    assert (want == radius).any() == (scene != "sheet")  # the lone parts; the tip's far vertices
+    for rel in (0.0, 0.3, 0.8, 0.97, 1.0, 1.001, 1.5, 100.0):
+        got = per_vertex_separation(V, E, F, radius, reach=rel * top)
+        np.testing.assert_array_equal(got.view(np.uint64), want.view(np.uint64), err_msg=f"reach {rel} x max")
+
+
+def test_reach_completes_only_the_vertices_at_it(rng, monkeypatch):
+    V, E, F = _scenes(rng, 0.0)["bundle"]
+    radius = 0.05
+    want = per_vertex_separation(V, E, F, radius)
+    seen = []
+    real = proximity._complete
+
+    def spy(x, E_, F_, r, C):
+        seen.append(C.copy())
+        return real(x, E_, F_, r, C)
+
+    monkeypatch.setattr(proximity, "_complete", spy)
+    reach = np.sort(want[want < radius])[-5]  # four vertices (and the lone segment) above
+    got = per_vertex_separation(V, E, F, radius, reach=reach)
+    np.testing.assert_array_equal(got, want)
+    (C,) = seen
+    used = referenced_vertices(V.shape[0], F, E)
+    np.testing.assert_array_equal(C, used & (want >= reach * (1 - 1e-6)))
+
+
+def test_separation_query_over_a_moving_scene(rng):
+    V, E, F = _scenes(rng, 0.0)["sheet"]
+    q = proximity.SeparationQuery(E, F)
+    for s in range(6):
+        # stretch, turn and jitter: the separations change a little from state to state
+        c, si = np.cos(0.2 * s), np.sin(0.2 * s)
+        R = np.array([[c, -si, 0], [si, c, 0], [0, 0, 1.0]]) * (1 + 0.05 * s)
+        x = np.ascontiguousarray(V @ R.T + rng.normal(scale=2e-4, size=V.shape))
+        radius = 0.04 + 0.01 * s
+        np.testing.assert_array_equal(q(x, radius), per_vertex_separation(x, E, F, radius))
+    assert q.info["queries"] == 6 and q.info["reached"] == 5
+    assert q.info["reach"] < 0.04
+
+
+def test_next_reach():
+    d = np.array([0.1, 0.2, 0.3, 1.0])
+    assert proximity.next_reach(d, 2.0) == pytest.approx(proximity.REACH_HEADROOM * 1.0)
+    assert proximity.next_reach(d, 1.0) is None  # a quarter of the vertices at the radius
+    assert proximity.next_reach(np.full(3, 1.0), 1.0) is None
+    many = np.concatenate([np.full(999, 0.1), [1.0]])
+    assert proximity.next_reach(many, 1.0) == pytest.approx(proximity.REACH_HEADROOM * 0.1)
+
+
+@pytest.mark.parametrize("reach", [np.inf, np.nan, -1.0])
+def test_reach_must_be_finite_and_non_negative(reach):
+    x = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0.1], [1, 1, 0.1]])
+    E = np.array([[0, 1], [2, 3]], dtype=np.int64)
+    with pytest.raises(InputError, match="reach must be finite"):
+        per_vertex_separation(x, E, np.zeros((0, 3), dtype=np.int64), 1.0, reach=reach)
