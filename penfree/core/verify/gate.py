@@ -111,15 +111,11 @@ class StepGate:
         lower values). A pair's distance is one of its vertices' terms, so a pair within
         the query radius R has only vertices with ``d < R``: the query searches just the
         primitives made of those (`near_pairs` with `keep`) and finds the same pairs
-        within R, so every verdict is the same. Not used when a vertex is in no
-        primitive (it has pairs with faces that no separation records).
+        within R, so every verdict is the same (`near_pairs` ignores it when a vertex is
+        in no primitive: such a vertex has pairs with faces that no separation records).
         """
-        from ..topology import referenced_vertices
-        from .path import _Body
-
-        body = _Body(self.x, self.x, self.edges, self.faces, "scene")
         d = np.asarray(d, dtype=np.float64)
-        if d.shape == (self.x.shape[0],) and referenced_vertices(self.x.shape[0], body.F, body.E).all():
+        if d.shape == (self.x.shape[0],):
             self._separations = d
 
     def near(self, reach):

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..contact.broad_phase import edge_edge_candidates, pair_rows, vertex_face_candidates
+from ..topology import referenced_vertices
 from .path import _Body, _Collector, _inflation, _narrow, _pairs_self, _self_candidates, _start_check
 
 
@@ -24,7 +25,8 @@ def near_pairs(x, edges, faces, radius, keep=None):
         vertices are kept are searched. The caller must know that the others are not:
         a vertex whose per-vertex separation (`per_vertex_separation`, every vertex in
         a primitive) is at least `radius` is in no such pair, since each pair's
-        distance is one of its vertices' terms (`StepGate.use_separations`).
+        distance is one of its vertices' terms (`StepGate.use_separations`). Ignored
+        when a vertex is in no primitive (its pairs with faces are no one's term).
 
     Returns
     -------
@@ -36,7 +38,7 @@ def near_pairs(x, edges, faces, radius, keep=None):
     """
     body = _Body(x, x, edges, faces, "scene")
     infl = _inflation(radius, body.x_t0)
-    if keep is None:
+    if keep is None or not referenced_vertices(body.x_t0.shape[0], body.F, body.E).all():
         return _self_candidates(body, body.x_t0, body.x_t0, infl)
     X = body.x_t0
     out = []

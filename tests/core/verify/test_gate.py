@@ -99,10 +99,15 @@ def test_gate_verdicts_with_and_without_separations(rng):
     assert any(verdicts) and not all(verdicts)
 
 
-def test_gate_ignores_separations_with_a_free_vertex(rng):
-    # A vertex in no primitive has pairs with faces that no separation records.
-    V, F = _resting_sheets(rng)
-    V = np.concatenate([V, [[0.5, 0.5, 0.05]]])
-    g = StepGate(V, faces=F, thickness=0.002)
-    g.use_separations(per_vertex_separation(V, edges_from_faces(F), F, 0.05))
-    assert g._separations is None
+def test_near_pairs_ignore_separations_with_a_free_vertex(rng):
+    # A vertex in no primitive has pairs with faces that no separation records: a free
+    # vertex resting on the lower sheet is near it although every sheet vertex is far.
+    V, F = _resting_sheets(rng, gap=0.05)
+    V = np.concatenate([V, [[0.55, 0.55, 0.001]]])
+    E = edges_from_faces(F)
+    R = 0.01
+    d = per_vertex_separation(V, E, F, R)
+    assert not (d[:-1] < R).any()
+    want = _close(near_pairs(V, None, F, R), V, R)
+    assert want and all(k == "vf" and i == len(V) - 1 for k, i, _ in want)
+    assert _close(near_pairs(V, None, F, R, keep=d < R), V, R) == want
