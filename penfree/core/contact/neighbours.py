@@ -314,6 +314,19 @@ class NeighbourList:
             best = min(best, (radius + 2.0 * eps) / s_min)
         return best
 
+    def coverage(self, x) -> float:
+        """The largest radius at `x` within which the current list holds every pair
+        (the inverse of `reach` at the build state: ``max(r_b - 2 delta, s_min r_b - 2
+        eps)``, shrunk by 1e-9 against rounding); -inf without a list."""
+        if self.x_b is None or self.x_b.shape != x.shape:
+            return -np.inf
+        best = self.r_b - 2.0 * max_displacement(x, self.x_b)
+        aff = affine_residual(self.x_b, x)
+        if aff is not None:
+            s_min, eps = aff
+            best = max(best, s_min * self.r_b - 2.0 * eps)
+        return best * (1.0 - 1e-9)
+
     def _observe(self, x, radius):
         """Reach of `x` from the reference state; updates the growth estimate."""
         if self.x_ref is None or self.x_ref.shape != x.shape:

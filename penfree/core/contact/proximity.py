@@ -131,8 +131,18 @@ def per_vertex_separation(x, E, F, radius, reach=None):
     r = _checked(radius, "radius")
     if reach is None or not _checked(reach, "reach") < r:
         return _separations(x, E, F, r)
-    rho = float(reach)
-    d = _separations(x, E, F, rho)
+    return complete_separations(x, E, F, r, float(reach), _separations(x, E, F, float(reach)))
+
+
+def complete_separations(x, E, F, radius, reach, d):
+    """The separations at `radius` from `d`, those of a query capped at `reach` < `radius`.
+
+    `d` may come from any query that visits every pair within `reach` (a fresh one, or a
+    neighbour list that holds them): its values below the reach less the rounding
+    slack are exact; the other vertices are completed at `radius` (module docstring).
+    `d` is updated in place and returned.
+    """
+    r, rho = float(radius), float(reach)
     mag = float(np.abs(x).max()) if x.size else 0.0
     tau = rho - 2.0 * _REACH_SLACK * (rho + mag)
     used = referenced_vertices(x.shape[0], F, E)

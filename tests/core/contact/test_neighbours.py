@@ -72,6 +72,31 @@ def test_superset_and_exact_on_every_sample_step(name):
     assert nl.info["reused"] > 0 and nl.info["builds"] < len(radii)
 
 
+@pytest.mark.parametrize("name", ["cloth.h5", "rods.h5", "twisting_cloth.h5", "falling_stack.h5"])
+def test_coverage_holds_every_pair_within_it(name):
+    # One list built at frame 1: at each later frame, every pair within its `coverage`
+    # is listed (brute-force oracle), and the reach of that radius fits the list.
+    seq = read_sequence(SAMPLES / name)
+    pos = np.asarray(seq.positions, dtype=np.float64)
+    _, E, F = scene_arrays(pos[0], seq.edges, seq.faces)
+    r = query_radius(pos[1], 2 * pos[1] - pos[0], seq.thickness)
+    nl = NeighbourList(E, F, skin=0.5 * r)
+    nl.ensure(np.ascontiguousarray(pos[1]), r, need_list=True)
+    covered = 0
+    for s in range(1, min(pos.shape[0], 8)):
+        x = np.ascontiguousarray(pos[s])
+        cover = nl.coverage(x)
+        if cover <= 0:
+            continue
+        covered += 1
+        assert nl.reach(x, cover, nl.x_b) <= nl.r_b
+        truth = pairs_within(x, E, F, cover)
+        for kind, P in (("ee", nl.P_ee), ("vf", nl.P_vf)):
+            assert not len(missing_pairs(truth[kind], P)), f"{name} frame {s}: {kind}"
+    assert covered >= 2
+    assert NeighbourList(E, F).coverage(pos[1]) == -np.inf  # no list yet
+
+
 @pytest.mark.parametrize("name", ["cloth.h5", "rods.h5", "twisting_cloth.h5"])
 def test_automatic_skin_is_exact(name):
     """Whatever the cost model decides (build, reuse, fresh), the answer is the fresh one."""

@@ -417,7 +417,8 @@ def test_step_bounds_answer_affine_images_from_the_list_bit_for_bit(rng, kind):
         "start": (x, "listed"),
         "rotated": ((x - c) @ R.T + c + [0.3, -0.2, 0.1], "listed"),
         "sheared": (x @ np.array([[1.0, 0.02, 0.0], [0.0, 1.0, 0.01], [0.0, 0.0, 1.0]]).T, "listed"),
-        "shrunk by half": (0.5 * (x - c) + c, "fresh"),  # sigma_min 0.5: beyond the skin
+        # sigma_min 0.5: beyond the skin; listed below r_q and completed, or fresh
+        "shrunk by half": (0.5 * (x - c) + c, None),
         "prediction": (2.0 * x - x_prev + 0.02 * rng.normal(size=x.shape), "fresh"),
     }
     sb.begin_step(x, r_q)
@@ -426,10 +427,44 @@ def test_step_bounds_answer_affine_images_from_the_list_bit_for_bit(rng, kind):
         got = sb(z, r_q)
         ref = trust_region_bounds(z, thickness=0.01, gamma=DEFAULT_GAMMA, query_radius=r_q, **kw)
         np.testing.assert_array_equal(got, ref, err_msg=name)
-        assert sb.info[how] == before[how] + 1, name
+        assert how is None or sb.info[how] == before[how] + 1, name
         assert (ref < DEFAULT_GAMMA * (r_q - 0.01)).any(), name  # some pair within reach
     assert sb.info["builds"] == 1
     # without begin_step, or with r_q = 0, every query is fresh and still exact
     sb2 = StepBounds.for_scene(pos[0], kw.get("edges"), kw.get("faces"), 0.01, DEFAULT_GAMMA)
     np.testing.assert_array_equal(sb2(x, r_q), trust_region_bounds(x, thickness=0.01, query_radius=r_q, **kw))
-    assert sb2.info == {"listed": 0, "fresh": 1, "builds": 0}
+    assert sb2.info == {"listed": 0, "fresh": 1, "builds": 0, "completed": 0}
+
+
+@pytest.mark.parametrize("kind", ["rods", "cloth"])
+@pytest.mark.parametrize("reach_rel", [None, 0.5, 0.85, 1.05], ids=["remembered", "half", "below", "above"])
+def test_step_bounds_at_a_reach_bit_for_bit(rng, monkeypatch, kind, reach_rel):
+    # The list of a later step is built at the reach of the last answers (below r_q); a
+    # state it covers only up to `cover` < r_q is answered from it and its vertices at the
+    # cap completed at r_q (every vertex, with COMPLETE_MAX 1, at the smaller reaches).
+    from penfree.core.contact import proximity
+    from penfree.core.trust.bounds import trust_region_bounds
+
+    monkeypatch.setattr(proximity, "COMPLETE_MAX", 1.0)
+    pos, topo = _rod_scene(rng, n=40) if kind == "rods" else _cloth_scene(rng, m=9)
+    kw = {"edges": topo} if kind == "rods" else {"faces": topo}
+    sb = StepBounds.for_scene(pos[0], kw.get("edges"), kw.get("faces"), 0.01, DEFAULT_GAMMA)
+    x, x_prev = pos[2].astype(np.float64), pos[1].astype(np.float64)
+    r_q = 0.01 + float(np.linalg.norm(x - x_prev, axis=1).max()) + 0.3
+    c = x.mean(axis=0)
+    th = 0.3
+    R = np.array([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0], [0.0, 0.0, 1.0]])
+    states = [x, (x - c) @ R.T + c, 0.97 * (x - c) + c, 2.0 * x - x_prev]
+    for step in range(2):
+        sb.begin_step(x, r_q)
+        if step == 1:
+            assert sb.nl.r_b < r_q  # built at the reach
+        for z in states:
+            ref = trust_region_bounds(z, thickness=0.01, gamma=DEFAULT_GAMMA, query_radius=r_q, **kw)
+            np.testing.assert_array_equal(sb(z, r_q), ref)
+        if step == 0 and reach_rel is not None:
+            d = proximity.per_vertex_separation(x, sb.E, sb.F, r_q)
+            sb.reach = reach_rel * float(d.max())  # the list's cover: 1.1 times this
+    assert sb.info["listed"] >= 5
+    if reach_rel is not None and reach_rel < 1.0:
+        assert sb.info["completed"] > 0
