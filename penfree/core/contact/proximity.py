@@ -241,7 +241,8 @@ class SeparationQuery:
     ----------
     info : dict
         ``queries``; ``reached`` (queries run below their radius); ``completed``
-        (vertices completed at the full radius, over all queries); ``reach`` (the last).
+        (vertices at or above the reach, the ones completed at the full radius, over
+        all queries); ``reach`` (the last).
 
     Examples
     --------
