@@ -17,7 +17,14 @@ SCALE_MIN, SCALE_MAX = 1e-100, 1e100
 
 def check_scale(a, where, name) -> None:
     """Refuse values whose largest magnitude lies outside [SCALE_MIN, SCALE_MAX] (all-zero passes)."""
-    big = float(np.max(np.abs(a))) if np.size(a) else 0.0
+    a = np.asarray(a)
+    if not np.size(a):
+        big = 0.0
+    elif a.dtype.kind == "f":
+        # max |a| without an |a| temporary (0.27 s for 64K x 100 frames): exact, NaN propagates
+        big = float(np.maximum(a.max(), -a.min()))
+    else:
+        big = float(np.max(np.abs(a.astype(np.float64))))
     if big != 0.0 and not SCALE_MIN <= big <= SCALE_MAX:
         raise InputError(f"{name} must have its largest magnitude in the supported range [{SCALE_MIN:g}, "
                          f"{SCALE_MAX:g}]; got {big:.3g} in {where}:/{name} (rescale the scene)")

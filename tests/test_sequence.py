@@ -95,3 +95,37 @@ def test_obstacle_frame_static_and_moving(rng):
     _seq(rng, obstacles=[static, moving]).validate()
     np.testing.assert_array_equal(static.frame(2), static.positions)
     np.testing.assert_array_equal(moving.frame(2), moving.positions[2])
+
+
+@pytest.mark.parametrize("values, ok", [
+    ([0.0, -0.0], True),                      # all zero passes
+    ([1.0, -1e100], True),                    # the largest magnitude is negative, at SCALE_MAX
+    ([1.0, -1.0000001e100], False),
+    ([1e-100, -1e-100], True),
+    ([3e-101, -1e-101], False),               # below SCALE_MIN
+    ([1.0, np.nan], False),
+    ([np.nan, 1.0], False),
+    ([-np.inf, 1.0], False),
+], ids=["zeros", "negative-at-max", "negative-above-max", "at-min", "below-min", "nan-last", "nan-first", "inf"])
+def test_check_scale_decides_on_the_largest_magnitude(values, ok):
+    # Without an |a| temporary: the verdict is the one of max |a| formed explicitly.
+    from penfree.sequence import SCALE_MAX, SCALE_MIN, check_scale
+
+    a = np.asarray(values, dtype=np.float64)
+    big = float(np.max(np.abs(a)))
+    assert ok == (big == 0.0 or SCALE_MIN <= big <= SCALE_MAX)
+    for b in (a, a[::-1].copy(), np.tile(a, (3, 2))):
+        if ok:
+            check_scale(b, "f.h5", "positions")
+        else:
+            with pytest.raises(InputError, match="positions must have its largest magnitude"):
+                check_scale(b, "f.h5", "positions")
+
+
+def test_check_scale_of_float32_and_integers():
+    from penfree.sequence import check_scale
+
+    check_scale(np.array([1.0, -3e38], dtype=np.float32), "f.h5", "positions")
+    with pytest.raises(InputError, match="largest magnitude"):
+        check_scale(np.array([1.0, np.nan], dtype=np.float32), "f.h5", "positions")
+    check_scale(np.array([-128, 3], dtype=np.int8), "f.h5", "faces")  # no overflow in |-128|
