@@ -265,8 +265,9 @@ class StepBounds:
     of `x`, i.e. the deformed states of the ladder's maps and of a result, need about
     r_q / sigma_min), any other state (the prediction, replay states) by a fresh
     query that leaves the list alone. Without `begin_step` every query is fresh.
-    The model ladder uses it (7-8 states per step: 1.35-1.63x); `compute_stats`, with
-    two states per step, queries fresh (a list measured 0.82-1.09x there).
+    The model ladder uses it (7-8 states per step: 1.35-1.63x), and `compute_stats`
+    without obstacles (two states per step: a list at r_q measured 0.82-1.09x there, at
+    the reach 1.25-1.3x).
 
     Reach (`penfree.core.contact.proximity`): every answer remembers the largest
     separation below r_q; the next step's list is built at that reach (1.1 times it)
@@ -375,8 +376,10 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
     replay_cap : int
         Cap on replay passes.
     bounds_fn : callable, optional
-        ``bounds_fn(x (N, 3) float64, query_radius float) -> (N,) float64``; default
-        `penfree.core.trust.bounds.trust_region_bounds` with this topology.
+        ``bounds_fn(x (N, 3) float64, query_radius float) -> (N,) float64``, with an
+        optional ``begin_step(x, query_radius)`` called at each step's start; default
+        `StepBounds` of this topology (`trust_region_bounds` bit for bit), or
+        `trust_region_bounds` itself with obstacles.
     progress : callable, optional
         Called once per finished step.
 
@@ -396,10 +399,13 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
     positions, deformed, frames, edges, faces, thickness, contact_radius, obstacles = _unpack(
         source, deformed, frames, edges, faces, thickness, contact_radius, obstacles)
     frame_now = [0]  # kinematic obstacles are held at the step's frame
-    if bounds_fn is None:
-        # Fresh queries: with two states per step, a step's neighbour list (`StepBounds`,
-        # the model ladder's) measured 0.82-1.09x (64K cloth and yarn, 12 frames).
-        # Each at the reach of the last state's separations (`SeparationQuery`).
+    if bounds_fn is None and not obstacles:
+        # One list per step at its start, at the reach of the last answers (`StepBounds`):
+        # x_def is an affine image of x. 1.25-1.3x over fresh queries at the reach on the
+        # 64K yarn and cloth results (12 frames; at r_q it measured 0.82-1.09x).
+        bounds_fn = StepBounds.for_scene(positions[0], edges, faces, thickness, gamma)
+    elif bounds_fn is None:
+        # Obstacles: fresh queries, each at the reach of the last state's separations.
         from ..contact.proximity import SeparationQuery
         from .bounds import scene_arrays, trust_region_bounds
 
@@ -407,8 +413,7 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
 
         def bounds_fn(x, r_q):
             return trust_region_bounds(x, edges=edges, faces=faces, thickness=thickness, gamma=gamma,
-                                       query_radius=r_q, obstacles=obstacles or None, frame=frame_now[0],
-                                       query=query)
+                                       query_radius=r_q, obstacles=obstacles, frame=frame_now[0], query=query)
 
     T, N = positions.shape[0], positions.shape[1]
     S = frames.shape[0]
@@ -428,6 +433,8 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
         r_q = query_radius(x, x_pred, contact_distance(contact_radius, thickness))
         out["query_radius"][i] = r_q
         frame_now[0] = int(f)
+        if r_q > 0 and hasattr(bounds_fn, "begin_step"):
+            bounds_fn.begin_step(x, r_q)
 
         def bounds_at(z, r_q=r_q):
             # r_q = 0 (no motion, no thickness): every d_v = 0, no CD query needed.

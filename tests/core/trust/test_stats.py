@@ -372,6 +372,24 @@ def test_compute_stats_default_bounds_match_oracle(rng, kind):
         np.testing.assert_allclose(a[k], b[k], rtol=1e-9, atol=0, err_msg=k)
 
 
+@pytest.mark.parametrize("kind", ["rods", "cloth"])
+def test_compute_stats_step_lists_equal_fresh_queries_bit_for_bit(rng, kind):
+    # The default (one StepBounds list per step, at the reach of the last answers; the
+    # replay states fresh) against fresh trust_region_bounds at every state.
+    from penfree.core.trust.bounds import trust_region_bounds
+
+    pos, topo = _rod_scene(rng, T=6, n=40) if kind == "rods" else _cloth_scene(rng, T=6, m=9)
+    kw = {"edges": topo} if kind == "rods" else {"faces": topo}
+    frames = np.arange(1, pos.shape[0])
+    c = pos[frames].mean(axis=1, keepdims=True)
+    deformed = 0.98 * (pos[frames] - c) + c + 0.3 * (pos[frames] - pos[frames - 1])
+    a = compute_stats(pos, deformed=deformed, frames=frames, thickness=0.01, replay=True, **kw)
+    b = compute_stats(pos, deformed=deformed, frames=frames, thickness=0.01, replay=True,
+                      bounds_fn=lambda x, r: trust_region_bounds(x, thickness=0.01, query_radius=r, **kw), **kw)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+
+
 def test_brute_bounds_oracle_hand_case():
     # Two parallel unit segments 0.5 apart plus a triangle-free far vertex: d = 0.5 for
     # the segments' vertices, r_q for the isolated vertex 3 (on no edge).
