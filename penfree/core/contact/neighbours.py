@@ -478,6 +478,17 @@ class NeighbourList:
             if self._query is None:  # fresh queries, each at the reach of the last
                 self._query = SeparationQuery(self.E, self.F)
             return self._query(x, float(radius))
+        return self.listed_separations(x, radius)
+
+    def listed_separations(self, x, radius) -> np.ndarray:
+        """`separations` from the current list as it is, without the validity check:
+        for a caller that has shown ``coverage(x) >= radius`` (`StepBounds`).
+
+        Parameters
+        ----------
+        x : (N, 3) float64, C-contiguous
+        radius : float >= 0
+        """
         from .proximity import capped_separations, start_minima
 
         # minima from the cap, as `per_vertex_separation`: the same capped result

@@ -152,7 +152,7 @@ def complete_separations(x, E, F, radius, reach, d):
     if n_c > COMPLETE_MAX * x.shape[0]:
         return _separations(x, E, F, r)
     if n_c:
-        d[C] = _complete(x, E, F, r, C)[C]
+        d[C] = _complete(x, E, F, r, C, used)[C]
     return d
 
 
@@ -178,11 +178,12 @@ def _separations(x, E, F, radius):
     return capped_separations(partial, radius)
 
 
-def _complete(x, E, F, radius, C):
+def _complete(x, E, F, radius, C, used):
     """Separations at `radius`, exact for the vertices of mask `C` (only): the folds of
     the pairs with a primitive that has a vertex in C (their edges against every edge,
-    their vertices against every face, every vertex against their faces). Each fold
-    visits only the other side's boxes that meet the bounding box of C's side."""
+    their vertices against every face, every vertex against their faces; `used` marks
+    the vertices in a primitive). Each fold visits only the other side's boxes that
+    meet the bounding box of C's side."""
     infl = 0.5 * radius
     partial = start_minima(x.shape[0], radius)
 
@@ -202,7 +203,7 @@ def _complete(x, E, F, radius, C):
             loB, hiB, EB = loE[k], hiE[k], E[k]
             fold(*near(loE, hiE, E, loB, hiB), loB, hiB, EB)
     if F.shape[0]:
-        Q = np.flatnonzero(referenced_vertices(x.shape[0], F, E)).astype(np.int64)[:, None]
+        Q = np.flatnonzero(used).astype(np.int64)[:, None]
         loQ, hiQ = _box_arrays(x, x, Q, infl)
         loF, hiF = _box_arrays(x, x, F, infl)
         k = np.flatnonzero(C[Q[:, 0]])
@@ -270,6 +271,11 @@ class SeparationQuery:
         if reach is not None:
             self.info["reached"] += 1
             self.info["completed"] += int(np.count_nonzero(d >= reach))
-        self.reach = next_reach(d, r)
         self.info["reach"] = reach
+        self.observe(d, r)
         return d
+
+    def observe(self, d, radius):
+        """Take the next reach from separations `d` at `radius` that another source (a
+        neighbour list) answered for this scene (`next_reach`)."""
+        self.reach = next_reach(d, radius)

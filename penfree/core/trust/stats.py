@@ -291,7 +291,10 @@ class StepBounds:
         self.h = _radius(thickness, "thickness")
         self.gamma = _radius(gamma, "gamma")
         self.nl = None
-        self.reach = None  # from the last answer (`proximity.next_reach`)
+        # fresh queries, and the reach of the last answer (`proximity.next_reach`)
+        from ..contact.proximity import SeparationQuery
+
+        self.query = SeparationQuery(E, F)
         self.info = {"listed": 0, "fresh": 0, "builds": 0, "completed": 0}
 
     @classmethod
@@ -308,7 +311,8 @@ class StepBounds:
 
         self.nl = None
         if r_q > 0 and (self.E.shape[0] > 1 or self.F.shape[0]):
-            r = float(r_q) if self.reach is None else min(float(r_q), self.reach)
+            reach = self.query.reach
+            r = float(r_q) if reach is None else min(float(r_q), reach)
             self.nl = NeighbourList(self.E, self.F, skin=STEP_SKIN_REL * r)
             self.nl.ensure(np.ascontiguousarray(x, dtype=np.float64), r, need_list=True)
             self.info["builds"] += 1
@@ -318,26 +322,25 @@ class StepBounds:
         return self._separations(np.ascontiguousarray(x, dtype=np.float64), r_q)
 
     def _separations(self, x, r_q):
-        from ..contact.proximity import REACH_HEADROOM, complete_separations, next_reach, per_vertex_separation
+        from ..contact.proximity import REACH_HEADROOM, complete_separations
 
         r_q = float(r_q)
         nl = self.nl
         cover = -np.inf if nl is None else nl.coverage(x)
-        expect = None if self.reach is None else self.reach / REACH_HEADROOM  # the last largest separation
+        reach = self.query.reach
+        expect = None if reach is None else reach / REACH_HEADROOM  # the last largest separation
         if cover >= r_q:
-            self.info["listed"] += 1
-            d = nl.separations(x, r_q)
+            d = nl.listed_separations(x, r_q)
         elif expect is not None and expect <= cover:
             # the list holds every pair within `cover` < r_q: the vertices it leaves at the
             # cap are completed at r_q, as a query at a reach (`complete_separations`)
-            self.info["listed"] += 1
-            d = complete_separations(x, self.E, self.F, r_q, cover, nl.separations(x, cover))
+            d = complete_separations(x, self.E, self.F, r_q, cover, nl.listed_separations(x, cover))
             self.info["completed"] += int(np.count_nonzero(d >= cover))
         else:
             self.info["fresh"] += 1
-            reach = self.reach if self.reach is not None and self.reach < r_q else None
-            d = per_vertex_separation(x, self.E, self.F, r_q, reach=reach)
-        self.reach = next_reach(d, r_q)
+            return self.query(x, r_q)
+        self.info["listed"] += 1
+        self.query.observe(d, r_q)
         return d
 
     def __call__(self, x, r_q):
@@ -433,7 +436,7 @@ def compute_stats(source=None, *, positions=None, deformed=None, frames=None, ed
         r_q = query_radius(x, x_pred, contact_distance(contact_radius, thickness))
         out["query_radius"][i] = r_q
         frame_now[0] = int(f)
-        if r_q > 0 and hasattr(bounds_fn, "begin_step"):
+        if hasattr(bounds_fn, "begin_step"):
             bounds_fn.begin_step(x, r_q)
 
         def bounds_at(z, r_q=r_q):

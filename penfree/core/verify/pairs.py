@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..contact.broad_phase import edge_edge_candidates, pair_rows, vertex_face_candidates
 from ..topology import referenced_vertices
 from .path import _Body, _Collector, _inflation, _narrow, _pairs_self, _self_candidates, _start_check
 
@@ -37,23 +36,9 @@ def near_pairs(x, edges, faces, radius, keep=None):
         scene's edges, vertices and faces).
     """
     body = _Body(x, x, edges, faces, "scene")
-    infl = _inflation(radius, body.x_t0)
-    if keep is None or not referenced_vertices(body.x_t0.shape[0], body.F, body.E).all():
-        return _self_candidates(body, body.x_t0, body.x_t0, infl)
-    X = body.x_t0
-    out = []
-    e = np.flatnonzero(keep[body.E].all(axis=1)) if len(body.E) else np.zeros(0, np.int64)
-    if e.size > 1:
-        Ek = np.ascontiguousarray(body.E[e])
-        ee = edge_edge_candidates(X, X, Ek, infl)
-        out.append(("ee", e[ee], pair_rows(Ek, Ek, ee)))
-    f = np.flatnonzero(keep[body.F].all(axis=1)) if len(body.F) else np.zeros(0, np.int64)
-    if f.size:
-        Fk = np.ascontiguousarray(body.F[f])
-        vf = vertex_face_candidates(X, X, Fk, infl, body.V[keep[body.V]])
-        ij = np.stack([vf[:, 0], f[vf[:, 1]]], axis=1)
-        out.append(("vf", ij, pair_rows(body.V[:, None], Fk, vf)))
-    return out
+    if keep is not None and not referenced_vertices(body.x_t0.shape[0], body.F, body.E).all():
+        keep = None
+    return _self_candidates(body, body.x_t0, body.x_t0, _inflation(radius, body.x_t0), keep)
 
 
 def check_pairs(pairs, x_t0, x_t1, thickness) -> bool:

@@ -152,15 +152,28 @@ def _excuse(pre, kind, ij, idx, X0, X1, ccd_kind, thickness, status, sep):
         status[old], sep[old] = SEPARATED, 0.0
 
 
-def _self_candidates(body, X0, X1, inflation):
-    """``[(kind, ij, idx)]`` of the scene's own pairs whose boxes over X0 -> X1 overlap."""
+def _self_candidates(body, X0, X1, inflation, keep=None):
+    """``[(kind, ij, idx)]`` of the scene's own pairs whose boxes over X0 -> X1 overlap.
+
+    With `keep` ((N,) bool), only among the primitives all of whose vertices are kept
+    (`pairs.near_pairs`); ``ij`` indexes the body's edges, vertices and faces either way.
+    """
     out = []
-    if len(body.E) > 1:
-        ee = edge_edge_candidates(X0, X1, body.E, inflation)
-        out.append(("ee", ee, pair_rows(body.E, body.E, ee)))
-    if len(body.F):
-        vf = vertex_face_candidates(X0, X1, body.F, inflation, body.V)
-        out.append(("vf", vf, pair_rows(body.V[:, None], body.F, vf)))
+    E, e = body.E, None
+    if keep is not None:
+        e = np.flatnonzero(keep[body.E].all(axis=1))
+        E = body.E[e]
+    if len(E) > 1:
+        ee = edge_edge_candidates(X0, X1, E, inflation)
+        out.append(("ee", ee if e is None else e[ee], pair_rows(E, E, ee)))
+    F, f, V = body.F, None, body.V
+    if keep is not None:
+        f = np.flatnonzero(keep[body.F].all(axis=1))
+        F, V = body.F[f], body.V[keep[body.V]]
+    if len(F):
+        vf = vertex_face_candidates(X0, X1, F, inflation, V)
+        ij = vf if f is None else np.stack([vf[:, 0], f[vf[:, 1]]], axis=1)
+        out.append(("vf", ij, pair_rows(body.V[:, None], F, vf)))
     return out
 
 

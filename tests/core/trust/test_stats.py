@@ -482,7 +482,7 @@ def test_step_bounds_at_a_reach_bit_for_bit(rng, monkeypatch, kind, reach_rel):
             np.testing.assert_array_equal(sb(z, r_q), ref)
         if step == 0 and reach_rel is not None:
             d = proximity.per_vertex_separation(x, sb.E, sb.F, r_q)
-            sb.reach = reach_rel * float(d.max())  # the list's cover: 1.1 times this
+            sb.query.reach = reach_rel * float(d.max())  # the list's cover: 1.1 times this
     assert sb.info["listed"] >= 5
     if reach_rel is not None and reach_rel < 1.0:
         assert sb.info["completed"] > 0
