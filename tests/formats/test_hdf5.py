@@ -192,3 +192,87 @@ def test_pooled_frame_writes_are_ordinary_gzip_shuffle_chunks(tmp_path, rng, dty
         np.testing.assert_array_equal(da[:], X)
         for t in range(T):
             assert da.id.read_direct_chunk((t, 0, 0)) == db.id.read_direct_chunk((t, 0, 0))
+
+
+def _chunks(path, name="positions"):
+    with h5py.File(path) as f:
+        ds = f[name]
+        return [ds.id.read_direct_chunk((t, 0, 0))[1] for t in range(ds.shape[0])], ds[:]
+
+
+@pytest.mark.parametrize("level, shuffle, copied", [(9, True, True), (1, True, True), (4, False, False)])
+def test_frames_copied_from_the_source_only_where_they_decode_to_the_same_bytes(tmp_path, rng, level, shuffle,
+                                                                               copied):
+    # A source chunk (any gzip level) is stored unchanged when it holds exactly the frame;
+    # a frame changed in memory, a source without shuffle (another filter pipeline) or a
+    # file changed after the read are compressed from the data instead. The values are the
+    # data in every case.
+    from penfree.formats.hdf5 import GZIP_LEVEL, _shuffled_deflate, write_positions
+
+    T = 12
+    X = (rng.normal(size=(T, 300, 3)) + 1e3).astype(np.float32)
+    src = tmp_path / "src.h5"
+    with h5py.File(src, "w") as f:
+        f.create_dataset("positions", data=X, chunks=(1, 300, 3), compression="gzip", compression_opts=level,
+                         shuffle=shuffle)
+    Y = X.copy()
+    Y[5, 17, 2] += 1.0  # one frame differs from the file
+    with h5py.File(tmp_path / "out.h5", "w") as f:
+        write_positions(f, "positions", Y, source=str(src))
+    blobs, values = _chunks(tmp_path / "out.h5")
+    stored, _ = _chunks(src)
+    np.testing.assert_array_equal(values, Y)
+    for t in range(T):
+        if copied and t != 5:
+            assert blobs[t] == stored[t], t
+        else:
+            assert blobs[t] == _shuffled_deflate(Y[t]), t
+    assert (level == GZIP_LEVEL) or not copied or blobs[0] != _shuffled_deflate(Y[0])
+    # the file changes after the read: nothing stale is copied
+    with h5py.File(src, "r+") as f:
+        f["positions"][3] = X[3] + 1.0
+    with h5py.File(tmp_path / "out2.h5", "w") as f:
+        write_positions(f, "positions", X, source=str(src))
+    blobs, values = _chunks(tmp_path / "out2.h5")
+    np.testing.assert_array_equal(values, X)
+    assert blobs[3] == _shuffled_deflate(X[3])
+
+
+@pytest.mark.parametrize("source", ["<memory>", "missing.h5", "not_h5.txt", "other_shape.h5", "float64.h5"])
+def test_frames_compressed_when_the_source_cannot_hold_them(tmp_path, rng, source):
+    from penfree.formats.hdf5 import _shuffled_deflate, write_positions
+
+    X = rng.normal(size=(9, 40, 3)).astype(np.float32)
+    (tmp_path / "not_h5.txt").write_text("positions")
+    with h5py.File(tmp_path / "other_shape.h5", "w") as f:
+        f.create_dataset("positions", data=X[:8], chunks=(1, 40, 3), compression="gzip", shuffle=True)
+    with h5py.File(tmp_path / "float64.h5", "w") as f:
+        f.create_dataset("positions", data=X.astype(np.float64), chunks=(1, 40, 3), compression="gzip", shuffle=True)
+    path = source if source == "<memory>" else str(tmp_path / source)
+    with h5py.File(tmp_path / "out.h5", "w") as f:
+        write_positions(f, "positions", X, source=path)
+    blobs, values = _chunks(tmp_path / "out.h5")
+    np.testing.assert_array_equal(values, X)
+    assert blobs == [_shuffled_deflate(x) for x in X]
+
+
+def test_deform_result_copies_the_input_chunks(tmp_path, rng, monkeypatch):
+    # The end-to-end path: a result written from a sequence read from disk stores the
+    # input's own chunks for its positions (only the deformed frames are compressed),
+    # and reads back the same frames.
+    from penfree.formats import hdf5
+    from penfree.formats.result import read_result, write_result
+
+    T, N = 10, 64
+    seq = Sequence(positions=(rng.normal(size=(T, N, 3))).astype(np.float32), edges=np.c_[np.arange(N - 1), np.arange(1, N)])
+    src = tmp_path / "in.h5"
+    write_sequence(src, seq)
+    back = read_sequence(src)
+    steps = {"frame": np.arange(1, T - 1), "A": np.tile(np.eye(3), (T - 2, 1, 1)), "b": np.zeros((T - 2, 3)),
+             "deformed": back.positions[1:T - 1]}
+    real, compressed = hdf5._shuffled_deflate, []
+    monkeypatch.setattr(hdf5, "_shuffled_deflate", lambda frame: compressed.append(frame) or real(frame))
+    write_result(tmp_path / "out.h5", back, steps, {})
+    assert len(compressed) == T - 2  # the deformed frames, not the positions
+    assert _chunks(tmp_path / "out.h5")[0] == _chunks(src)[0]
+    np.testing.assert_array_equal(read_result(tmp_path / "out.h5").sequence.positions, seq.positions)

@@ -16,6 +16,7 @@ from penfree.core.trust.stats import (
     query_radius,
     ratio_stats,
     replay_passes,
+    residual_summary,
     stats_keys,
 )
 from penfree.errors import InputError
@@ -486,3 +487,31 @@ def test_step_bounds_at_a_reach_bit_for_bit(rng, monkeypatch, kind, reach_rel):
     assert sb.info["listed"] >= 5
     if reach_rel is not None and reach_rel < 1.0:
         assert sb.info["completed"] > 0
+
+
+@pytest.mark.parametrize("da, db", [(np.float64, np.float64), (np.float32, np.float64), (np.float32, np.float32)])
+@pytest.mark.parametrize("offset", [0.0, 1e4])
+@pytest.mark.parametrize("n", [1, 7, 64, 1000])
+def test_residual_summary_against_numpy(rng, da, db, offset, n):
+    # The numpy oracle: per-vertex distances in float64, rms of them and their max. The
+    # max is the same float (sqrt is monotone and both square and sum x, y, z in order).
+    a = (rng.normal(size=(n, 3)) + offset).astype(da)
+    b = (a.astype(np.float64) + 1e-3 * rng.normal(size=(n, 3))).astype(db)
+    d = np.linalg.norm(a.astype(np.float64) - b.astype(np.float64), axis=1)
+    rms, top = residual_summary(a, b)
+    assert top == d.max()
+    assert rms == pytest.approx(math.sqrt(np.mean(d * d)), rel=1e-13)
+
+
+def test_residual_summary_zero_motion_nan_and_bad_shapes(rng):
+    a = rng.normal(size=(50, 3))
+    assert residual_summary(a, a) == (0.0, 0.0)
+    b = a.copy()
+    b[17, 1] = np.nan
+    assert all(math.isnan(v) for v in residual_summary(a, b))
+    b[17, 1] = np.inf
+    assert residual_summary(a, b) == (math.inf, math.inf)
+    with pytest.raises(InputError, match="one shape"):
+        residual_summary(a, a[:-1])
+    with pytest.raises(InputError, match="at least one"):
+        residual_summary(a[:0], a[:0])
