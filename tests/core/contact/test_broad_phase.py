@@ -474,3 +474,17 @@ def test_plan_chooses_the_compacted_scan_where_few_entries_hit(rng):
         np.testing.assert_array_equal(pairs, edge_edge_candidates_brute(V, V, E, inflation))
     small = bp._Plan(lo[:100], hi[:100], E[:100], lo[:100], hi[:100], E[:100], True)
     assert small.compact is False
+
+
+
+def test_grid_entries_store_int32_ids_and_refuse_more_boxes():
+    # int32 entry ids and cell corners (cells per axis are capped at 2^20); a grid of
+    # 2^31 boxes or more is refused instead of wrapping the ids.
+    V, E = rods(4, 10, np.random.default_rng(0))
+    lo, hi = bp._box_arrays(V, V, E, 0.01)
+    plan = bp._Plan(lo, hi, E, lo, hi, E, True, 0.01)
+    assert plan.ent_id.dtype == np.int32 and plan.ent_clo.dtype == np.int32
+    assert int(plan.ent_clo.max()) < bp._MAX_DIM
+    bp._check_box_count((1 << 31) - 1)
+    with pytest.raises(InputError, match="at most 2\\^31 - 1 boxes; got 2147483648"):
+        bp._check_box_count(1 << 31)
