@@ -152,6 +152,15 @@ def _excuse(pre, kind, ij, idx, X0, X1, ccd_kind, thickness, status, sep):
         status[old], sep[old] = SEPARATED, 0.0
 
 
+def _all_kept(keep, T):
+    """(M,) bool: the rows of `T` all of whose vertices `keep` marks (one gather per column:
+    ``keep[T].all(axis=1)`` reduced a 3-wide axis at 2 ms per 64K cloth step)."""
+    out = keep[T[:, 0]]
+    for c in range(1, T.shape[1]):
+        out &= keep[T[:, c]]
+    return out
+
+
 def _self_candidates(body, X0, X1, inflation, keep=None):
     """``[(kind, ij, idx)]`` of the scene's own pairs whose boxes over X0 -> X1 overlap.
 
@@ -161,14 +170,14 @@ def _self_candidates(body, X0, X1, inflation, keep=None):
     out = []
     E, e = body.E, None
     if keep is not None:
-        e = np.flatnonzero(keep[body.E].all(axis=1))
+        e = np.flatnonzero(_all_kept(keep, body.E))
         E = body.E[e]
     if len(E) > 1:
         ee = edge_edge_candidates(X0, X1, E, inflation)
         out.append(("ee", ee if e is None else e[ee], pair_rows(E, E, ee)))
     F, f, V = body.F, None, body.V
     if keep is not None:
-        f = np.flatnonzero(keep[body.F].all(axis=1))
+        f = np.flatnonzero(_all_kept(keep, body.F))
         F, V = body.F[f], body.V[keep[body.V]]
     if len(F):
         vf = vertex_face_candidates(X0, X1, F, inflation, V)

@@ -188,3 +188,16 @@ def test_verdict_invariant_under_relabelling_and_translation(seed, shift):
     assert (r.ok, r.start_ok, r.n_violations, r.n_start_violations) == (ref.ok, ref.start_ok, ref.n_violations, ref.n_start_violations)
     back = {tuple(sorted((int(eperm[i]), int(eperm[j])))) for _, i, j, _ in r.pairs}
     assert back == {tuple(sorted((i, j))) for _, i, j, _ in ref.pairs}
+
+
+@pytest.mark.parametrize("share", [0.0, 0.02, 0.5, 1.0])
+@pytest.mark.parametrize("width", [2, 3])
+def test_all_kept_rows_against_numpy(rng, share, width):
+    # The kept-primitive filter of the gate's near-pair query: the rows all of whose
+    # vertices are kept, as numpy's keep[T].all(axis=1) gives them.
+    from penfree.core.verify.path import _all_kept
+
+    T = rng.integers(0, 500, size=(2000, width))
+    keep = rng.random(500) < share
+    np.testing.assert_array_equal(_all_kept(keep, T), keep[T].all(axis=1))
+    assert _all_kept(keep, T[:0]).shape == (0,)
