@@ -70,8 +70,13 @@ def query_radius(x, x_pred, contact_radius=0.0) -> float:
 
     Callers pass `contact_distance(contact_radius, thickness)`.
     """
-    d = np.linalg.norm(np.asarray(x_pred, dtype=np.float64) - np.asarray(x, dtype=np.float64), axis=1)
-    return float(contact_radius) + (float(d.max()) if d.size else 0.0)
+    a, b = np.ascontiguousarray(x_pred), np.ascontiguousarray(x)
+    if a.shape != b.shape or a.ndim != 2 or a.shape[1:] != (3,):
+        raise InputError(f"query_radius needs two (N, 3) arrays of one shape; got {a.shape} and {b.shape}")
+    # the largest |x_pred - x| as numpy's norm gives it: sqrt is monotone, so
+    # sqrt(max |.|^2) is max sqrt(|.|^2), bit for bit (`_residual_sq`)
+    top = math.sqrt(_residual_sq(a.reshape(-1), b.reshape(-1), REDUCTION_CHUNKS)[1]) if a.shape[0] else 0.0
+    return float(contact_radius) + top
 
 
 def _higher_quantile(r_sorted, q):

@@ -515,3 +515,20 @@ def test_residual_summary_zero_motion_nan_and_bad_shapes(rng):
         residual_summary(a, a[:-1])
     with pytest.raises(InputError, match="at least one"):
         residual_summary(a[:0], a[:0])
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("offset", [0.0, 1e5])
+@pytest.mark.parametrize("n", [0, 1, 33, 5000])
+def test_query_radius_bit_for_bit_against_numpy(rng, dtype, offset, n):
+    # r_q sizes every query of a step: its bits must be numpy's contact + max |x_pred - x|.
+    x = (rng.normal(size=(n, 3)) + offset).astype(dtype)
+    x_pred = 2.0 * x.astype(np.float64) - (x + 1e-3 * rng.normal(size=(n, 3))).astype(dtype)
+    d = np.linalg.norm(x_pred - x.astype(np.float64), axis=1)
+    want = 0.0125 + (float(d.max()) if n else 0.0)
+    assert query_radius(x, x_pred, 0.0125) == want
+    if n:
+        x_pred[n // 2, 0] = np.nan
+        assert math.isnan(query_radius(x, x_pred, 0.0125))
+    with pytest.raises(InputError, match="one shape"):
+        query_radius(x, x_pred[:, :2], 0.0)
