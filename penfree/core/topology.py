@@ -246,5 +246,19 @@ def referenced_vertices(n_vertices: int, *topologies) -> np.ndarray:
     used = np.zeros(n_vertices, dtype=bool)
     for T in topologies:
         if T is not None and np.size(T):
-            used[np.asarray(T).ravel()] = True
+            _mark(used, np.ascontiguousarray(T, dtype=np.int64).reshape(-1))
     return used
+
+
+@njit(cache=True)
+def _mark(used, idx):
+    # used[idx] = True without numpy's fancy-index machinery (0.9 -> ~0.2 ms for a 64K
+    # cloth's faces and edges, a few calls per step); negative indices wrap as numpy's.
+    n = used.shape[0]
+    for k in range(idx.shape[0]):
+        i = idx[k]
+        if i < 0:
+            i += n
+        if i < 0 or i >= n:
+            raise IndexError("vertex index out of range")
+        used[i] = True
