@@ -111,3 +111,18 @@ def test_scene_edges_remembered_by_content_not_identity(rng):
     E[0] = [3, 4]
     changed = scene_edges(E, F)
     assert [tuple(e) for e in changed.tolist()] == _edge_set_oracle(E.tolist(), F.tolist())
+
+
+def test_referenced_vertices_against_numpy():
+    from penfree.core.topology import referenced_vertices
+
+    rng = np.random.default_rng(3)
+    F, E = rng.integers(0, 300, (200, 3)), rng.integers(0, 300, (150, 2))
+    want = np.zeros(300, bool)
+    want[F.ravel()] = True
+    want[E.ravel()] = True
+    np.testing.assert_array_equal(referenced_vertices(300, F, E), want)
+    np.testing.assert_array_equal(referenced_vertices(300, None, np.zeros((0, 2), np.int64)), np.zeros(300, bool))
+    np.testing.assert_array_equal(referenced_vertices(4, np.array([[0, -1]])), [True, False, False, True])
+    with pytest.raises(IndexError):
+        referenced_vertices(4, np.array([[0, 4]]))
