@@ -325,22 +325,28 @@ def _shuffled(frame: np.ndarray) -> bytes:
     return np.ascontiguousarray(raw.T).tobytes()
 
 
+def _deflate(shuffled: bytes) -> bytes:
+    """A shuffled chunk (`_shuffled`) as the deflate filter stores it."""
+    return zlib.compress(shuffled, GZIP_LEVEL)
+
+
 def _shuffled_deflate(frame: np.ndarray) -> bytes:
     """One chunk as HDF5's shuffle + deflate filters store it."""
-    return zlib.compress(_shuffled(frame), GZIP_LEVEL)
+    return _deflate(_shuffled(frame))
 
 
 def _reused_or_deflated(frame: np.ndarray, stored) -> bytes:
     """`stored` (a source chunk's ``(filter_mask, bytes)``, or None) if it decodes to
     exactly `frame`'s bytes, else `frame` shuffled and deflated."""
+    shuffled = _shuffled(frame)
     if stored is not None and stored[0] == 0:
         try:
             plain = zlib.decompress(stored[1])
         except zlib.error:
             plain = None
-        if plain is not None and plain == _shuffled(frame):
+        if plain == shuffled:
             return stored[1]
-    return _shuffled_deflate(frame)
+    return _deflate(shuffled)
 
 
 @contextmanager

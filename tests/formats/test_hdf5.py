@@ -270,8 +270,8 @@ def test_deform_result_copies_the_input_chunks(tmp_path, rng, monkeypatch):
     back = read_sequence(src)
     steps = {"frame": np.arange(1, T - 1), "A": np.tile(np.eye(3), (T - 2, 1, 1)), "b": np.zeros((T - 2, 3)),
              "deformed": back.positions[1:T - 1]}
-    real, compressed = hdf5._shuffled_deflate, []
-    monkeypatch.setattr(hdf5, "_shuffled_deflate", lambda frame: compressed.append(frame) or real(frame))
+    real, compressed = hdf5._deflate, []
+    monkeypatch.setattr(hdf5, "_deflate", lambda shuffled: compressed.append(shuffled) or real(shuffled))
     write_result(tmp_path / "out.h5", back, steps, {})
     assert len(compressed) == T - 2  # the deformed frames, not the positions
     assert _chunks(tmp_path / "out.h5")[0] == _chunks(src)[0]

@@ -70,12 +70,10 @@ def query_radius(x, x_pred, contact_radius=0.0) -> float:
 
     Callers pass `contact_distance(contact_radius, thickness)`.
     """
-    a, b = np.ascontiguousarray(x_pred), np.ascontiguousarray(x)
-    if a.shape != b.shape or a.ndim != 2 or a.shape[1:] != (3,):
-        raise InputError(f"query_radius needs two (N, 3) arrays of one shape; got {a.shape} and {b.shape}")
+    n, a, b = _flat_pair(x_pred, x, "query_radius")
     # the largest |x_pred - x| as numpy's norm gives it: sqrt is monotone, so
     # sqrt(max |.|^2) is max sqrt(|.|^2), bit for bit (`_residual_sq`)
-    top = math.sqrt(_residual_sq(a.reshape(-1), b.reshape(-1), REDUCTION_CHUNKS)[1]) if a.shape[0] else 0.0
+    top = math.sqrt(_residual_sq(a, b, REDUCTION_CHUNKS)[1]) if n else 0.0
     return float(contact_radius) + top
 
 
@@ -215,14 +213,20 @@ def residual_summary(x_s, y) -> tuple:
     summed in `REDUCTION_CHUNKS` fixed chunks, so the bits do not depend on anything but
     the inputs; NaN propagates to both figures.
     """
-    a = np.ascontiguousarray(x_s)
-    b = np.ascontiguousarray(y)
-    if a.ndim != 2 or a.shape[1:] != (3,) or b.shape != a.shape:
-        raise InputError(f"residual_summary needs two (N, 3) arrays of one shape; got {a.shape} and {b.shape}")
-    if a.shape[0] == 0:
+    n, a, b = _flat_pair(x_s, y, "residual_summary")
+    if n == 0:
         raise InputError("residual_summary needs at least one vertex")
-    s, m = _residual_sq(a.reshape(-1), b.reshape(-1), REDUCTION_CHUNKS)
-    return math.sqrt(s / a.shape[0]), math.sqrt(m)
+    s, m = _residual_sq(a, b, REDUCTION_CHUNKS)
+    return math.sqrt(s / n), math.sqrt(m)
+
+
+def _flat_pair(a, b, who):
+    """``(N, a, b)``: two (N, 3) arrays of one shape as flat contiguous (3N,) views
+    (copies only where they were not contiguous), for `_residual_sq`."""
+    a, b = np.ascontiguousarray(a), np.ascontiguousarray(b)
+    if a.ndim != 2 or a.shape[1:] != (3,) or b.shape != a.shape:
+        raise InputError(f"{who} needs two (N, 3) arrays of one shape; got {a.shape} and {b.shape}")
+    return a.shape[0], a.reshape(-1), b.reshape(-1)
 
 
 @numba.njit(cache=True)
