@@ -192,7 +192,10 @@ def scene_edges(E, F) -> np.ndarray:
     """
     E = np.asarray(E, dtype=np.int64).reshape(-1, 2)
     if not len(F):
-        return np.ascontiguousarray(E[E[:, 0] != E[:, 1]])
+        # `compress` or a plain copy: a boolean index of the rows took ~0.9 ms for 65K
+        # segments, once per `verify_step` (a 64K rods step takes ~15 ms).
+        keep = E[:, 0] != E[:, 1]
+        return np.array(E, order="C", copy=True) if keep.all() else np.compress(keep, E, axis=0)
     F = np.asarray(F)
     for cE, cF, res in _SCENE_EDGES_SEEN:
         if cE.shape == E.shape and cF.shape == F.shape and np.array_equal(cF, F) and np.array_equal(cE, E):

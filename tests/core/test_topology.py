@@ -80,14 +80,21 @@ def _edge_set_oracle(E, F):
     return sorted(p for p in out if p[0] != p[1])
 
 
-@pytest.mark.parametrize("case", ["segments-only", "faces-only", "mixed", "degenerate"])
+@pytest.mark.parametrize("case", ["segments-only", "segments-degenerate", "faces-only", "mixed", "degenerate"])
 def test_scene_edges_against_set_oracle(rng, case):
     n = 12
     E = rng.integers(0, n, size=(8, 2)) if case != "faces-only" else np.zeros((0, 2), np.int64)
-    F = rng.integers(0, n, size=(6, 3)) if case != "segments-only" else np.zeros((0, 3), np.int64)
-    if case == "degenerate":
+    F = rng.integers(0, n, size=(6, 3)) if not case.startswith("segments") else np.zeros((0, 3), np.int64)
+    if case == "segments-only":
+        E[:, 1] = (E[:, 0] + 1 + E[:, 1] % (n - 1)) % n  # no (i, i): the copy path
+    if case in ("degenerate", "segments-degenerate"):
         E[:3, 1] = E[:3, 0]  # (i, i) segments
+    if case == "degenerate":
         F[0] = [4, 4, 5]  # a face repeating a vertex
+    E_before = E.copy()
+    got = scene_edges(E, F)
+    got[...] = -1  # the result is the caller's: the input is never aliased
+    np.testing.assert_array_equal(E, E_before)
     got = scene_edges(E, F)
     assert got.dtype == np.int64 and got.flags.c_contiguous
     assert (got[:, 0] != got[:, 1]).all()

@@ -11,11 +11,11 @@ import numpy as np
 
 from ...constants import DEFAULT_MAX_PAIRS, UNIT_ROUNDOFF, VERIFY_MARGIN_LADDER
 from ...errors import InputError
-from ..contact.broad_phase import min_pair_sq
+from ..contact.broad_phase import min_pair_sq, start_face_pass
 from ..fit.certificate import certify, fast_margin_bound
 from .gate import deviation_bound
 from .reuse import apart_sq, listed_start_pass
-from .path import _bodies, _Collector, _edge_face, _inflation, _pairs_self, check_thickness
+from .path import _bodies, _Collector, _inflation, _pairs_self, check_thickness, edge_face_exact
 from .result import VerifyResult
 
 
@@ -31,20 +31,28 @@ def _margin(A, need_positive):
     return None
 
 
-def _proven_apart(scene, g):
+def _proven_apart(scene, g, infl, d2_vf):
     """True when every vertex-face and edge-edge pair of the start state is proven
-    more than `g` apart: one pass folding the computed distances of the pairs whose
-    boxes come within g (no pair stored, no CCD), each compared with `reuse.apart_sq`
-    (far above the distance kernels' rounding). False means "maybe within g": the
-    static CCD then decides, as before."""
+    more than `g` apart: the computed distances of the pairs whose boxes, inflated by
+    `infl`, overlap (folded in one pass, no pair stored, no CCD; the vertex-face ones
+    already in `d2_vf`, from `start_face_pass`), compared with `reuse.apart_sq` (far
+    above the distance kernels' rounding). False means "maybe within g": the static
+    CCD then decides, as before."""
     x = scene.x_t0
-    infl = _inflation(g, x)
-    d2 = np.inf
+    d2 = d2_vf
     if len(scene.E) > 1:
-        d2 = min_pair_sq(x, scene.E, scene.E, infl, True)
-    if len(scene.F) and len(scene.V):
-        d2 = min(d2, min_pair_sq(x, np.ascontiguousarray(scene.V[:, None]), scene.F, infl, False))
+        d2 = min(d2, min_pair_sq(x, scene.E, scene.E, infl, True))
     return d2 > apart_sq(g, x)
+
+
+def _start_faces(col, scene, infl):
+    """The start state's edge-face intersections into `col` (as `path._edge_face`) and
+    the vertex-face minimum for `_proven_apart`, from one grid of the faces."""
+    if not len(scene.F) or not len(scene.V):
+        return np.inf
+    cand, d2 = start_face_pass(scene.x_t0, scene.E, scene.F, scene.V, infl)
+    edge_face_exact(col, "ef", scene.x_t0, scene.E, scene.F, cand[:, 0], cand[:, 1])
+    return d2
 
 
 def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0.0,
@@ -104,9 +112,9 @@ def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0
         return None
     col = _Collector()
     if neighbours is None or not listed_start_pass(col, neighbours, scene.x_t0, g):
-        if len(scene.F):
-            _edge_face(col, "ef", scene.x_t0, scene.E, scene.F)
-        if not col.kinds and not _proven_apart(scene, g):
+        infl = _inflation(g, scene.x_t0)
+        d2_vf = _start_faces(col, scene, infl)
+        if not col.kinds and not _proven_apart(scene, g, infl, d2_vf):
             _pairs_self(col, scene, g, static=True)
     if col.kinds:
         return None  # a start pair within g (maybe a real violation): full CCD decides

@@ -15,7 +15,7 @@ import numpy as np
 from numba import njit
 
 from ..contact.neighbours import NeighbourList
-from ..contact.orient import segment_may_meet_triangle
+from ..contact.orient import segment_may_meet_triangle_at
 from .path import _narrow, _share_no_vertex, edge_face_exact
 
 #: A listed pair is dropped before the CCD only when its computed distance exceeds
@@ -54,7 +54,7 @@ def _boxes_touch(x, E, F, ef):
                 ok = False
                 break
         if ok:
-            ok = segment_may_meet_triangle(x[E[e, 0]], x[E[e, 1]], x[F[f, 0]], x[F[f, 1]], x[F[f, 2]])
+            ok = segment_may_meet_triangle_at(x, E[e, 0], E[e, 1], F[f, 0], F[f, 1], F[f, 2])
         out[k] = ok
     return out
 

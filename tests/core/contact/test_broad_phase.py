@@ -14,7 +14,7 @@ from penfree.core.contact.broad_phase import (
     vertex_face_candidates,
     vertex_face_candidates_between,
 )
-from penfree.core.topology import edges_from_faces
+from penfree.core.topology import edges_from_faces, scene_edges
 from penfree.errors import InputError
 
 from oracles import (
@@ -488,3 +488,59 @@ def test_grid_entries_store_int32_ids_and_refuse_more_boxes():
     bp._check_box_count((1 << 31) - 1)
     with pytest.raises(InputError, match="at most 2\\^31 - 1 boxes; got 2147483648"):
         bp._check_box_count(1 << 31)
+
+
+def _start_scene(kind, rng):
+    """(x, E, F, vertices) for the certificate path's face queries."""
+    V, F = cloth(16, rng)
+    if kind == "folded-cloth":  # a second layer just above the first: many near pairs
+        V = np.concatenate([V, V + [0.0, 0.0, 0.01]])
+        F = np.concatenate([F, F + len(V) // 2])
+    if kind == "far-from-origin":
+        V = V + 1e4
+    if kind == "free-vertex-outside":  # a vertex in no face, beyond every face's box
+        V = np.concatenate([V, [[-3.0, 0.5, 0.0]]])
+    E = scene_edges(np.zeros((0, 2), np.int64), F)
+    return np.ascontiguousarray(V), E, np.ascontiguousarray(F, dtype=np.int64), np.arange(len(V), dtype=np.int64)
+
+
+@pytest.mark.parametrize("inflation", [0.0, 1e-3, 0.02])
+@pytest.mark.parametrize("kind", ["cloth", "folded-cloth", "far-from-origin", "free-vertex-outside"])
+def test_start_face_pass_is_the_two_queries(rng, kind, inflation):
+    # One grid of the faces for the edge-face candidates and the vertex-face fold: the
+    # candidates hold `edge_face_candidates`' (the faces' boxes are inflated, so maybe
+    # more) and every pair they add has overlapping inflated boxes; the minimum is
+    # `min_pair_sq`'s float.
+    x, E, F, Q = _start_scene(kind, rng)
+    cand, d2 = bp.start_face_pass(x, E, F, Q, inflation)
+    _assert_valid(cand, False)
+    want = bp.edge_face_candidates(x, E, F)
+    got = set(map(tuple, cand.tolist()))
+    assert set(map(tuple, want.tolist())) <= got
+    if inflation == 0.0:
+        np.testing.assert_array_equal(cand, want)
+    lo_e, hi_e = x[E].min(1), x[E].max(1)
+    lo_f, hi_f = x[F].min(1) - inflation, x[F].max(1) + inflation
+    k, f = cand[:, 0], cand[:, 1]
+    assert np.all((lo_e[k] <= hi_f[f]) & (lo_f[f] <= hi_e[k]))
+    assert d2 == bp.min_pair_sq(x, Q[:, None], F, inflation, False)
+    if kind == "folded-cloth":
+        assert len(want) > 0 or d2 < 0.011 ** 2  # the layers are near: the fold sees them
+
+
+def test_plan_with_rows_finds_a_fresh_plans_pairs(rng):
+    # Rows of another set against a built grid: the same pairs as a fresh plan over
+    # the same boxes; rows leaving the grid's cells get no plan (keys would alias).
+    x, E, F, Q = _start_scene("cloth", rng)
+    loF, hiF = bp._box_arrays(x, x, F, 0.01)
+    loE, hiE = bp._box_arrays(x, x, E, 0.0)
+    plan = bp._Plan(loE, hiE, E, loF, hiF, F, False)
+    TV = Q[:, None]
+    loV, hiV = bp._box_arrays(x, x, TV, 0.01)
+    shared = plan.with_rows(loV, hiV, TV, 0.01)
+    assert shared is not None and shared.boff is plan.boff
+    np.testing.assert_array_equal(shared.pairs(), bp._Plan(loV, hiV, TV, loF, hiF, F, False, 0.01).pairs())
+    np.testing.assert_array_equal(shared.pairs(), vertex_face_candidates(x, x, F, 0.01))
+    for shift in ([-5.0, 0, 0], [0, 0, 5.0]):  # below the origin, beyond the last cell
+        assert plan.with_rows(loV + shift, hiV + shift, TV, 0.01) is None
+    assert bp._Plan(loE, hiE, E, loE, hiE, E, True).with_rows(loV, hiV, TV, 0.0) is None  # self query

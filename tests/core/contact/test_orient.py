@@ -8,7 +8,7 @@ import pytest
 
 from penfree.core.contact.broad_phase import edge_face_candidates
 from penfree.core.contact.intersection import segments_triangles_intersect
-from penfree.core.contact.orient import orient3d_sign, segment_may_meet_triangle
+from penfree.core.contact.orient import orient3d_sign, segment_may_meet_triangle, segment_may_meet_triangle_at
 from penfree.core.topology import edges_from_faces
 
 
@@ -64,6 +64,22 @@ def test_segment_filter_never_clears_a_meeting_pair(rng):
     cleared = np.array([not segment_may_meet_triangle(s[0], s[1], t[0], t[1], t[2]) for s, t in zip(seg, tri)])
     assert meet.sum() > 100 and not np.any(cleared & meet)
     assert cleared.sum() > 0.3 * (~meet).sum()  # and it clears most of the misses
+
+
+def test_indexed_filter_is_the_row_filter(rng):
+    # The coordinate kernel behind the broad phase's edge-face filter gives the row
+    # version's verdict on every pair, exact ties and degenerate triangles included,
+    # and so never clears a meeting pair either (exact oracle).
+    seg, tri = _pairs(rng, 600)
+    seg[:40] = _near_coplanar(rng, 40)[:, :2]  # nearly coplanar with their triangles
+    tri[:40] = _near_coplanar(rng, 40)[:, 1:]
+    V = np.concatenate([seg, tri], axis=1).reshape(-1, 3)  # pair k: rows 5k .. 5k + 4
+    rows = [segment_may_meet_triangle(s[0], s[1], t[0], t[1], t[2]) for s, t in zip(seg, tri)]
+    at = [segment_may_meet_triangle_at(V, 5 * k, 5 * k + 1, 5 * k + 2, 5 * k + 3, 5 * k + 4) for k in range(len(seg))]
+    assert at == rows
+    meet = segments_triangles_intersect(seg, tri)
+    assert meet.sum() > 100 and not np.any(meet & ~np.array(at))
+    assert 0.2 * len(at) < sum(at) < len(at)  # both verdicts occur
 
 
 def _crossing_sheets(rng, n=9):

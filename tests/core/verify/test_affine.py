@@ -44,11 +44,22 @@ def test_affine_fast_path_refuses_what_it_cannot_prove():
     assert verify_affine_step(V, V, A, np.zeros(3), faces=F, thickness=0.6) is None
 
 
+def _proven(scene, g):
+    # The certificate path's start passes: the faces' (edge-face test, vertex-face
+    # minimum) on one grid, then the edge-edge fold.
+    from penfree.core.verify.affine import _proven_apart, _start_faces
+    from penfree.core.verify.path import _Collector, _inflation
+
+    infl = _inflation(g, scene.x_t0)
+    col = _Collector()
+    d2_vf = _start_faces(col, scene, infl)
+    return not col.kinds and _proven_apart(scene, g, infl, d2_vf)
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_distance_pass_never_clears_a_pair_the_static_ccd_flags(seed):
     # `_proven_apart` (one pass over computed distances) may skip the static CCD only
     # when that CCD finds nothing within g. Two sheets at gaps straddling g, jittered.
-    from penfree.core.verify.affine import _proven_apart
     from penfree.core.verify.path import _bodies, _Collector, _pairs_self
 
     rng = np.random.default_rng(seed)
@@ -59,12 +70,12 @@ def test_distance_pass_never_clears_a_pair_the_static_ccd_flags(seed):
         scene = _bodies(V, V, None, F, None)[0]
         col = _Collector()
         _pairs_self(col, scene, g, static=True)
-        if _proven_apart(scene, g):
+        if _proven(scene, g):
             assert not col.kinds, gap
         if gap < g * (1 - 1e-6):
-            assert not _proven_apart(scene, g) and col.kinds
+            assert not _proven(scene, g) and col.kinds
     V, F = two_sheets(n=5, gap=3 * g)
-    assert _proven_apart(_bodies(V, V, None, F, None)[0], g)
+    assert _proven(_bodies(V, V, None, F, None)[0], g)
 
 
 def test_affine_step_with_a_pair_inside_g_goes_to_the_ccd():
