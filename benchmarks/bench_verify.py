@@ -74,13 +74,30 @@ def cloth(n, regime):
     return x0, x1, None, F
 
 
-def median_time(fn, repeats):
-    times, out = [], None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times)), out
+#: Rounds of `interleaved_medians`: at least `--repeats`, more while a round is fast,
+#: until about this many seconds have passed (at most `MAX_ROUNDS`).
+MIN_TOTAL_S = 1.0
+MAX_ROUNDS = 25
+
+
+def interleaved_medians(fns, repeats):
+    """{name: (median seconds, last output)}, the functions run round-robin.
+
+    One call of each per round, so that a drift of the shared machine's speed (up to 2x
+    within minutes, BENCHMARKS.md) reaches every peer alike; rows of ~10 ms get up to
+    `MAX_ROUNDS` rounds instead of three, whose medians moved by +-30% between runs.
+    """
+    times = {k: [] for k in fns}
+    outs = {}
+    start = time.perf_counter()
+    rounds = 0
+    while rounds < repeats or (time.perf_counter() - start < MIN_TOTAL_S and rounds < MAX_ROUNDS):
+        for k, fn in fns.items():
+            t = time.perf_counter()
+            outs[k] = fn()
+            times[k].append(time.perf_counter() - t)
+        rounds += 1
+    return {k: (float(np.median(v)), outs[k]) for k, v in times.items()}
 
 
 def ipc_runner(x0, x1, E, F, thickness):
@@ -101,12 +118,14 @@ def ipc_runner(x0, x1, E, F, thickness):
 
 def bench_scene(name, make, n, regime, repeats, thickness):
     x0, x1, E, F = make(n, regime)
-    t_pf, r = median_time(lambda: verify_step(x0, x1, edges=E, faces=F, thickness=thickness), repeats)
     phases, run = ipc_runner(x0, x1, E, F, thickness)
+    fns = {"penfree": lambda: verify_step(x0, x1, edges=E, faces=F, thickness=thickness)}
+    fns.update({ph: run(ph) for ph in phases})
+    res = interleaved_medians(fns, repeats)
+    t_pf, r = res.pop("penfree")
     best = (np.inf, None, None)
     per_phase = {}
-    for ph in phases:
-        t, free = median_time(run(ph), repeats)
+    for ph, (t, free) in res.items():
         per_phase[ph] = t
         if t < best[0]:
             best = (t, ph, free)
@@ -125,10 +144,12 @@ def bench_affine(n, repeats, thickness):
     centre = x0.mean(axis=0)
     x_def = (x0 - centre) @ A.T + centre + b  # centred, as deform computes it
     b_eff = centre + b - A @ centre
-    t_cert, rc = median_time(lambda: verify_affine_step(x0, x_def, A, b_eff, faces=F, thickness=thickness), repeats)
-    t_ccd, rf = median_time(lambda: verify_step(x0, x_def, faces=F, thickness=thickness), repeats)
     phases, run = ipc_runner(x0, x_def, None, F, thickness)
-    t_ipc, free = median_time(run("LBVH"), repeats)
+    res = interleaved_medians({
+        "cert": lambda: verify_affine_step(x0, x_def, A, b_eff, faces=F, thickness=thickness),
+        "ccd": lambda: verify_step(x0, x_def, faces=F, thickness=thickness),
+        "ipc": run("LBVH")}, repeats)
+    (t_cert, rc), (t_ccd, rf), (t_ipc, free) = res["cert"], res["ccd"], res["ipc"]
     proven = rc is not None and rc.ok
     print(f"affine cloth step, {x0.shape[0]} vertices, thickness {thickness:g}: certificate path {t_cert:.3f}s "
           f"({'proven' if proven else 'NOT proven, CCD needed'}), full CCD {t_ccd:.3f}s "
@@ -155,7 +176,8 @@ def main(argv=None):
             verify_step(x0, x1, edges=E, faces=F, thickness=1e-3)
     verify_affine_step(x0, x0, np.eye(3), np.zeros(3), faces=F, thickness=1e-3)
 
-    print(f"median of {args.repeats} runs, seconds; ratio = ipctk / penfree (> 1: penfree faster)")
+    print(f"median of >= {args.repeats} interleaved rounds (more for fast rows, about {MIN_TOTAL_S:g} s, at most "
+          f"{MAX_ROUNDS}), seconds; ratio = ipctk / penfree (> 1: penfree faster)")
     print(f"{'scene':<6} {'regime':<7} {'N':>7} {'thickness':>9} {'cand.':>10} {'penfree':>9} "
           f"{'ipctk':>9} {'ipc phase':<13} {'ratio':>8}  {'verd.':<5} {'agree':<5}")
     for name, make in (("rods", rods), ("cloth", cloth)):

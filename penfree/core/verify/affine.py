@@ -11,7 +11,7 @@ import numpy as np
 
 from ...constants import DEFAULT_MAX_PAIRS, UNIT_ROUNDOFF, VERIFY_MARGIN_LADDER
 from ...errors import InputError
-from ..contact.broad_phase import min_pair_sq, start_face_pass
+from ..contact.broad_phase import start_pass
 from ..fit.certificate import certify, fast_margin_bound
 from .gate import deviation_bound
 from .reuse import apart_sq, listed_start_pass
@@ -31,28 +31,17 @@ def _margin(A, need_positive):
     return None
 
 
-def _proven_apart(scene, g, infl, d2_vf):
-    """True when every vertex-face and edge-edge pair of the start state is proven
-    more than `g` apart: the computed distances of the pairs whose boxes, inflated by
-    `infl`, overlap (folded in one pass, no pair stored, no CCD; the vertex-face ones
-    already in `d2_vf`, from `start_face_pass`), compared with `reuse.apart_sq` (far
-    above the distance kernels' rounding). False means "maybe within g": the static
-    CCD then decides, as before."""
+def _start_pass(col, scene, g):
+    """The start state's edge-face intersections into `col` (as `path._edge_face`), and
+    True when every vertex-face and edge-edge pair is proven more than `g` apart: the
+    computed distances of the pairs whose boxes come within g (folded, no pair stored,
+    no CCD; `broad_phase.start_pass`) all above `reuse.apart_sq` (far above the distance
+    kernels' rounding). False means "maybe within g": the static CCD then decides."""
     x = scene.x_t0
-    d2 = d2_vf
-    if len(scene.E) > 1:
-        d2 = min(d2, min_pair_sq(x, scene.E, scene.E, infl, True))
+    cand, d2 = start_pass(x, scene.E, scene.F, scene.V, _inflation(g, x))
+    if len(cand):
+        edge_face_exact(col, "ef", x, scene.E, scene.F, cand[:, 0], cand[:, 1])
     return d2 > apart_sq(g, x)
-
-
-def _start_faces(col, scene, infl):
-    """The start state's edge-face intersections into `col` (as `path._edge_face`) and
-    the vertex-face minimum for `_proven_apart`, from one grid of the faces."""
-    if not len(scene.F) or not len(scene.V):
-        return np.inf
-    cand, d2 = start_face_pass(scene.x_t0, scene.E, scene.F, scene.V, infl)
-    edge_face_exact(col, "ef", scene.x_t0, scene.E, scene.F, cand[:, 0], cand[:, 1])
-    return d2
 
 
 def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0.0,
@@ -112,9 +101,7 @@ def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0
         return None
     col = _Collector()
     if neighbours is None or not listed_start_pass(col, neighbours, scene.x_t0, g):
-        infl = _inflation(g, scene.x_t0)
-        d2_vf = _start_faces(col, scene, infl)
-        if not col.kinds and not _proven_apart(scene, g, infl, d2_vf):
+        if not _start_pass(col, scene, g) and not col.kinds:
             _pairs_self(col, scene, g, static=True)
     if col.kinds:
         return None  # a start pair within g (maybe a real violation): full CCD decides

@@ -399,10 +399,11 @@ def test_grid_build_is_one_serial_pass_for_any_chunking(rng, sparse, chunks):
     plan = bp._Plan(lo, hi, E, lo, hi, E, True)
     assert (plan.bits >= 0) == sparse and (~plan.smallA).any()
     nb = plan.boff.size - 1
-    boff, ent_key, ent_id, ent_box, ent_clo = bp._build_grid(
+    boff, ent_key, ent_id, ent_box, ent_clo, hit_cap = bp._build_grid(
         plan.cloA, plan.chiA, plan.smallA, plan.dims, plan.bits, nb, lo, hi, chunks=chunks)
     b, key, ids = _grid_oracle(plan.cloA, plan.chiA, plan.smallA, plan.dims, plan.bits, lo, hi)
     np.testing.assert_array_equal(boff, np.searchsorted(b, np.arange(nb + 1)))
+    assert hit_cap == np.bincount(b, minlength=nb).max() == plan.hit_cap
     np.testing.assert_array_equal(ent_id, ids)
     np.testing.assert_array_equal(ent_box, np.hstack([lo, hi])[ids].T)
     np.testing.assert_array_equal(ent_clo, plan.cloA[ids])
@@ -506,26 +507,35 @@ def _start_scene(kind, rng):
 
 @pytest.mark.parametrize("inflation", [0.0, 1e-3, 0.02])
 @pytest.mark.parametrize("kind", ["cloth", "folded-cloth", "far-from-origin", "free-vertex-outside"])
-def test_start_face_pass_is_the_two_queries(rng, kind, inflation):
-    # One grid of the faces for the edge-face candidates and the vertex-face fold: the
-    # candidates hold `edge_face_candidates`' (the faces' boxes are inflated, so maybe
-    # more) and every pair they add has overlapping inflated boxes; the minimum is
-    # `min_pair_sq`'s float.
+def test_start_pass_is_the_three_queries(rng, kind, inflation):
+    # Two grids for the edge-face candidates and the two folds: the candidates hold
+    # `edge_face_candidates`' (the boxes are inflated, so maybe more) and every pair
+    # they add has overlapping inflated boxes; the minimum is the two folds' float.
     x, E, F, Q = _start_scene(kind, rng)
-    cand, d2 = bp.start_face_pass(x, E, F, Q, inflation)
+    cand, d2 = bp.start_pass(x, E, F, Q, inflation)
     _assert_valid(cand, False)
     want = bp.edge_face_candidates(x, E, F)
-    got = set(map(tuple, cand.tolist()))
-    assert set(map(tuple, want.tolist())) <= got
+    assert set(map(tuple, want.tolist())) <= set(map(tuple, cand.tolist()))
     if inflation == 0.0:
         np.testing.assert_array_equal(cand, want)
-    lo_e, hi_e = x[E].min(1), x[E].max(1)
+    lo_e, hi_e = x[E].min(1) - inflation, x[E].max(1) + inflation
     lo_f, hi_f = x[F].min(1) - inflation, x[F].max(1) + inflation
     k, f = cand[:, 0], cand[:, 1]
     assert np.all((lo_e[k] <= hi_f[f]) & (lo_f[f] <= hi_e[k]))
-    assert d2 == bp.min_pair_sq(x, Q[:, None], F, inflation, False)
-    if kind == "folded-cloth":
-        assert len(want) > 0 or d2 < 0.011 ** 2  # the layers are near: the fold sees them
+    ee = bp.min_pair_sq(x, E, E, inflation, True)
+    vf = bp.min_pair_sq(x, Q[:, None], F, inflation, False)
+    assert d2 == min(ee, vf)
+    if kind == "folded-cloth" and inflation == 0.02:  # the layers 0.01 apart: both folds see them
+        assert max(ee, vf) < 0.011 ** 2
+
+
+def test_start_pass_without_faces_or_with_one_edge(rng):
+    V, E = rods(4, 10, rng)
+    none = np.zeros((0, 3), dtype=np.int64)
+    cand, d2 = bp.start_pass(V, E, none, np.arange(len(V)), 0.01)
+    assert cand.shape == (0, 2) and d2 == bp.min_pair_sq(V, E, E, 0.01, True)
+    cand, d2 = bp.start_pass(V, E[:1], none, np.arange(len(V)), 0.01)
+    assert cand.shape == (0, 2) and np.isinf(d2)
 
 
 def test_plan_with_rows_finds_a_fresh_plans_pairs(rng):

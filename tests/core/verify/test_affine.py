@@ -45,15 +45,12 @@ def test_affine_fast_path_refuses_what_it_cannot_prove():
 
 
 def _proven(scene, g):
-    # The certificate path's start passes: the faces' (edge-face test, vertex-face
-    # minimum) on one grid, then the edge-edge fold.
-    from penfree.core.verify.affine import _proven_apart, _start_faces
-    from penfree.core.verify.path import _Collector, _inflation
+    # The certificate path's start pass: edge-face test, vertex-face and edge-edge folds.
+    from penfree.core.verify.affine import _start_pass
+    from penfree.core.verify.path import _Collector
 
-    infl = _inflation(g, scene.x_t0)
     col = _Collector()
-    d2_vf = _start_faces(col, scene, infl)
-    return not col.kinds and _proven_apart(scene, g, infl, d2_vf)
+    return _start_pass(col, scene, g) and not col.kinds
 
 
 @pytest.mark.parametrize("seed", range(4))
