@@ -74,28 +74,32 @@ def cloth(n, regime):
     return x0, x1, None, F
 
 
-#: Rounds of `interleaved_medians`: at least `--repeats`, more while a round is fast,
-#: until about this many seconds have passed (at most `MAX_ROUNDS`).
+#: Block rounds of `block_medians`: while a round is fast, more rounds, until about
+#: this many seconds have passed (at most `MAX_ROUNDS`).
 MIN_TOTAL_S = 1.0
-MAX_ROUNDS = 25
+MAX_ROUNDS = 8
 
 
-def interleaved_medians(fns, repeats):
-    """{name: (median seconds, last output)}, the functions run round-robin.
+def block_medians(fns, repeats):
+    """{name: (median seconds, last output)}: each function `repeats` times in a row
+    (its own scratch memory warm, as in the sequential protocol), the functions in turn,
+    and the rounds repeated while they are fast.
 
-    One call of each per round, so that a drift of the shared machine's speed (up to 2x
-    within minutes, BENCHMARKS.md) reaches every peer alike; rows of ~10 ms get up to
-    `MAX_ROUNDS` rounds instead of three, whose medians moved by +-30% between runs.
+    The shared machine's speed drifts (up to 2x within minutes, BENCHMARKS.md): with one
+    block per peer, the medians of the ~10 ms rods rows moved by +-30% between runs.
+    Single calls round-robin were tried and dropped: each call then starts cold after the
+    other peer's (the 12M-pair cloth row took 3.8 instead of 1.9-2.3 s).
     """
     times = {k: [] for k in fns}
     outs = {}
     start = time.perf_counter()
     rounds = 0
-    while rounds < repeats or (time.perf_counter() - start < MIN_TOTAL_S and rounds < MAX_ROUNDS):
+    while rounds < 1 or (time.perf_counter() - start < MIN_TOTAL_S and rounds < MAX_ROUNDS):
         for k, fn in fns.items():
-            t = time.perf_counter()
-            outs[k] = fn()
-            times[k].append(time.perf_counter() - t)
+            for _ in range(repeats):
+                t = time.perf_counter()
+                outs[k] = fn()
+                times[k].append(time.perf_counter() - t)
         rounds += 1
     return {k: (float(np.median(v)), outs[k]) for k, v in times.items()}
 
@@ -121,7 +125,7 @@ def bench_scene(name, make, n, regime, repeats, thickness):
     phases, run = ipc_runner(x0, x1, E, F, thickness)
     fns = {"penfree": lambda: verify_step(x0, x1, edges=E, faces=F, thickness=thickness)}
     fns.update({ph: run(ph) for ph in phases})
-    res = interleaved_medians(fns, repeats)
+    res = block_medians(fns, repeats)
     t_pf, r = res.pop("penfree")
     best = (np.inf, None, None)
     per_phase = {}
@@ -145,7 +149,7 @@ def bench_affine(n, repeats, thickness):
     x_def = (x0 - centre) @ A.T + centre + b  # centred, as deform computes it
     b_eff = centre + b - A @ centre
     phases, run = ipc_runner(x0, x_def, None, F, thickness)
-    res = interleaved_medians({
+    res = block_medians({
         "cert": lambda: verify_affine_step(x0, x_def, A, b_eff, faces=F, thickness=thickness),
         "ccd": lambda: verify_step(x0, x_def, faces=F, thickness=thickness),
         "ipc": run("LBVH")}, repeats)
@@ -176,8 +180,8 @@ def main(argv=None):
             verify_step(x0, x1, edges=E, faces=F, thickness=1e-3)
     verify_affine_step(x0, x0, np.eye(3), np.zeros(3), faces=F, thickness=1e-3)
 
-    print(f"median of >= {args.repeats} interleaved rounds (more for fast rows, about {MIN_TOTAL_S:g} s, at most "
-          f"{MAX_ROUNDS}), seconds; ratio = ipctk / penfree (> 1: penfree faster)")
+    print(f"median of {args.repeats} runs in a row per peer, the peers in turn, the rounds repeated while "
+          f"under {MIN_TOTAL_S:g} s (at most {MAX_ROUNDS}); seconds; ratio = ipctk / penfree (> 1: penfree faster)")
     print(f"{'scene':<6} {'regime':<7} {'N':>7} {'thickness':>9} {'cand.':>10} {'penfree':>9} "
           f"{'ipctk':>9} {'ipc phase':<13} {'ratio':>8}  {'verd.':<5} {'agree':<5}")
     for name, make in (("rods", rods), ("cloth", cloth)):

@@ -14,7 +14,7 @@ from penfree.core.contact.broad_phase import (
     vertex_face_candidates,
     vertex_face_candidates_between,
 )
-from penfree.core.topology import edges_from_faces, scene_edges
+from penfree.core.topology import edges_from_faces
 from penfree.errors import InputError
 
 from oracles import (
@@ -492,16 +492,10 @@ def test_grid_entries_store_int32_ids_and_refuse_more_boxes():
 
 
 def _start_scene(kind, rng):
-    """(x, E, F, vertices) for the certificate path's face queries."""
-    V, F = cloth(16, rng)
-    if kind == "folded-cloth":  # a second layer just above the first: many near pairs
-        V = np.concatenate([V, V + [0.0, 0.0, 0.01]])
-        F = np.concatenate([F, F + len(V) // 2])
-    if kind == "far-from-origin":
-        V = V + 1e4
+    """(x, E, F, vertices) for the certificate path's start pass."""
+    V, E, F = _scene("cloth" if kind == "free-vertex-outside" else kind, rng)
     if kind == "free-vertex-outside":  # a vertex in no face, beyond every face's box
         V = np.concatenate([V, [[-3.0, 0.5, 0.0]]])
-    E = scene_edges(np.zeros((0, 2), np.int64), F)
     return np.ascontiguousarray(V), E, np.ascontiguousarray(F, dtype=np.int64), np.arange(len(V), dtype=np.int64)
 
 
