@@ -532,17 +532,21 @@ def test_start_pass_without_faces_or_with_one_edge(rng):
     assert cand.shape == (0, 2) and np.isinf(d2)
 
 
-def test_plan_with_rows_finds_a_fresh_plans_pairs(rng):
+@pytest.mark.parametrize("sparse", [False, True], ids=["dense", "hashed"])
+def test_plan_with_rows_finds_a_fresh_plans_pairs(rng, sparse):
     # Rows of another set against a built grid: the same pairs as a fresh plan over
     # the same boxes; rows leaving the grid's cells get no plan (keys would alias).
     x, E, F, Q = _start_scene("cloth", rng)
+    if sparse:  # a second sheet far away: a hashed table
+        x, E, F = np.concatenate([x, x + 50.0]), np.concatenate([E, E + len(x)]), np.concatenate([F, F + len(x)])
+        Q = np.arange(len(x), dtype=np.int64)
     loF, hiF = bp._box_arrays(x, x, F, 0.01)
     loE, hiE = bp._box_arrays(x, x, E, 0.0)
     plan = bp._Plan(loE, hiE, E, loF, hiF, F, False)
     TV = Q[:, None]
     loV, hiV = bp._box_arrays(x, x, TV, 0.01)
     shared = plan.with_rows(loV, hiV, TV, 0.01)
-    assert shared is not None and shared.boff is plan.boff
+    assert shared is not None and shared.boff is plan.boff and (plan.bits >= 0) == sparse
     np.testing.assert_array_equal(shared.pairs(), bp._Plan(loV, hiV, TV, loF, hiF, F, False, 0.01).pairs())
     np.testing.assert_array_equal(shared.pairs(), vertex_face_candidates(x, x, F, 0.01))
     for shift in ([-5.0, 0, 0], [0, 0, 5.0]):  # below the origin, beyond the last cell
