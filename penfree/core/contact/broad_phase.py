@@ -430,6 +430,9 @@ def fold_pair_min(V, TA, i, TB, j, dmin, lb_sq):
 def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
                loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box, ent_clo, compact,
                bigB, gap_off, J, pos, lim, V, dmin, buf):
+    # 30 parameters, CPython's limit for a plain call: with more, the callers' calls compile
+    # through a tuple (CALL_FUNCTION_EX), which Numba's inliner refuses ("closure with *args").
+    # `origin` and `h` are unused here and can make room.
     """Visit the partners j of row i; return how many there are.
 
     MODE_COUNT only counts; MODE_FILL writes the partners j into J from `pos` on
