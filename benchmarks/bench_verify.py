@@ -88,7 +88,7 @@ def block_medians(fns, repeats):
     The shared machine's speed drifts (up to 2x within minutes, BENCHMARKS.md): with one
     block per peer, the medians of the ~10 ms rods rows moved by +-30% between runs.
     Single calls round-robin were tried and dropped: each call then starts cold after the
-    other peer's (the 12M-pair cloth row took 3.8 instead of 1.9-2.3 s).
+    other peer's (the 12M-pair cloth row took 3.8 instead of 1.5-2.3 s).
     """
     times = {k: [] for k in fns}
     outs = {}

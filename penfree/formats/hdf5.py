@@ -330,11 +330,6 @@ def _deflate(shuffled: bytes) -> bytes:
     return zlib.compress(shuffled, GZIP_LEVEL)
 
 
-def _shuffled_deflate(frame: np.ndarray) -> bytes:
-    """One chunk as HDF5's shuffle + deflate filters store it."""
-    return _deflate(_shuffled(frame))
-
-
 def _reused_or_deflated(frame: np.ndarray, stored) -> bytes:
     """`stored` (a source chunk's ``(filter_mask, bytes)``, or None) if it decodes to
     exactly `frame`'s bytes, else `frame` shuffled and deflated."""
@@ -379,7 +374,7 @@ def write_positions(g, name, positions, dtype=None, source=None) -> None:
     """``(T, N, 3)`` with one frame per chunk, gzip + shuffle.
 
     The frames are compressed by a thread pool (zlib releases the GIL) and written as
-    raw chunks with the filters' own layout (`_shuffled_deflate`), so any HDF5 reader
+    raw chunks with the filters' own layout (`_shuffled`, `_deflate`), so any HDF5 reader
     sees an ordinary gzip + shuffle dataset; HDF5 itself compresses one chunk after
     another on the calling thread (2.3 s of a 64K x 100 frames result, issue 13).
 

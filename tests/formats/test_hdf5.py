@@ -207,7 +207,7 @@ def test_frames_copied_from_the_source_only_where_they_decode_to_the_same_bytes(
     # a frame changed in memory, a source without shuffle (another filter pipeline) or a
     # file changed after the read are compressed from the data instead. The values are the
     # data in every case.
-    from penfree.formats.hdf5 import GZIP_LEVEL, _shuffled_deflate, write_positions
+    from penfree.formats.hdf5 import GZIP_LEVEL, _deflate, _shuffled, write_positions
 
     T = 12
     X = (rng.normal(size=(T, 300, 3)) + 1e3).astype(np.float32)
@@ -226,8 +226,8 @@ def test_frames_copied_from_the_source_only_where_they_decode_to_the_same_bytes(
         if copied and t != 5:
             assert blobs[t] == stored[t], t
         else:
-            assert blobs[t] == _shuffled_deflate(Y[t]), t
-    assert (level == GZIP_LEVEL) or not copied or blobs[0] != _shuffled_deflate(Y[0])
+            assert blobs[t] == _deflate(_shuffled(Y[t])), t
+    assert (level == GZIP_LEVEL) or not copied or blobs[0] != _deflate(_shuffled(Y[0]))
     # the file changes after the read: nothing stale is copied
     with h5py.File(src, "r+") as f:
         f["positions"][3] = X[3] + 1.0
@@ -235,12 +235,12 @@ def test_frames_copied_from_the_source_only_where_they_decode_to_the_same_bytes(
         write_positions(f, "positions", X, source=str(src))
     blobs, values = _chunks(tmp_path / "out2.h5")
     np.testing.assert_array_equal(values, X)
-    assert blobs[3] == _shuffled_deflate(X[3])
+    assert blobs[3] == _deflate(_shuffled(X[3]))
 
 
 @pytest.mark.parametrize("source", ["<memory>", "missing.h5", "not_h5.txt", "other_shape.h5", "float64.h5"])
 def test_frames_compressed_when_the_source_cannot_hold_them(tmp_path, rng, source):
-    from penfree.formats.hdf5 import _shuffled_deflate, write_positions
+    from penfree.formats.hdf5 import _deflate, _shuffled, write_positions
 
     X = rng.normal(size=(9, 40, 3)).astype(np.float32)
     (tmp_path / "not_h5.txt").write_text("positions")
@@ -253,7 +253,7 @@ def test_frames_compressed_when_the_source_cannot_hold_them(tmp_path, rng, sourc
         write_positions(f, "positions", X, source=path)
     blobs, values = _chunks(tmp_path / "out.h5")
     np.testing.assert_array_equal(values, X)
-    assert blobs == [_shuffled_deflate(x) for x in X]
+    assert blobs == [_deflate(_shuffled(x)) for x in X]
 
 
 def test_deform_result_copies_the_input_chunks(tmp_path, rng, monkeypatch):

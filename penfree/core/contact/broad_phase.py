@@ -580,14 +580,18 @@ def _corners_py(lo, hi, corners):
 _corners = parallel_kernel(_corners_py, "_bp_corners")
 
 
+def _box_corners(lo, hi):
+    """(2, 3): the boxes' lower and upper bounding corners."""
+    parts = np.empty((_STAT_CHUNKS, 2, 3))
+    _corners(lo.shape[0], lo, hi, parts)
+    return np.stack([parts[:, 0].min(axis=0), parts[:, 1].max(axis=0)])
+
+
 def _box_stats(lo, hi):
     """``(corners (2, 3), ext)``: the boxes' bounding corners and the extents of a
     strided sample of <= 32K of them (all that `_median_extents` reads)."""
-    parts = np.empty((_STAT_CHUNKS, 2, 3))
-    _corners(lo.shape[0], lo, hi, parts)
-    corners = np.stack([parts[:, 0].min(axis=0), parts[:, 1].max(axis=0)])
     step = max(1, lo.shape[0] // 32768)
-    return corners, hi[::step] - lo[::step]
+    return _box_corners(lo, hi), hi[::step] - lo[::step]
 
 
 def _median_extents(sample):
@@ -773,7 +777,7 @@ class _Plan:
         cell size changes how rows scan, never which pairs they find."""
         if self.empty or self.self_query or loA.shape[0] == 0:
             return None
-        cornA, _ = _box_stats(loA, hiA)
+        cornA = _box_corners(loA, hiA)
         if np.any(cornA[0] < self.origin):
             return None
         cloA, chiA, ncA, topA, _ = self._ranges(loA, hiA, self.origin, self.h)
@@ -1044,8 +1048,7 @@ def start_pass(x, E, F, vertices, inflation):
     and the edge boxes serve both the edge-face rows and the edge-edge grid: two grids
     and three box arrays instead of three and five (~10 ms of a 64K cloth's ~0.1 s).
     """
-    none = np.zeros((0, 2), dtype=np.int64)
-    cand, d2 = none, np.inf
+    cand, d2 = np.zeros((0, 2), dtype=np.int64), np.inf
     loE, hiE = _box_arrays(x, x, E, inflation)
     if len(F):
         loF, hiF = _box_arrays(x, x, F, inflation)

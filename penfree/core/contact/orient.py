@@ -17,11 +17,12 @@ orientations; a degenerate triangle is covered, its edge lines being one line). 
 lets the start-state edge-face check skip the exact test for the pairs it clears;
 every other pair still goes through the exact test.
 
-The kernels take coordinates (`_orient3d_xyz`) or indices into a positions array
-(`segment_may_meet_triangle_at`), not (3,) rows: a row view per argument costs a
+The arithmetic is written once, on coordinates (`_orient3d_xyz`,
+`_segment_may_meet_xyz`); the hot loops call it with indices into a positions array
+(`segment_may_meet_triangle_at`), not with (3,) rows: a row view per argument costs a
 reference count update, and with five views per pair the filter ran 7-10x slower
 (440K edge-face pairs of a 64K cloth: 53-60 vs 5-8 ms, one thread, issue 13). The
-(3,)-row functions are the same arithmetic, for callers outside the hot loops.
+(3,)-row functions unpack their rows into the same kernels.
 """
 
 from __future__ import annotations
@@ -63,14 +64,8 @@ def orient3d_sign(a, b, c, d):
 
 
 @njit(cache=True, inline="always")
-def segment_may_meet_triangle_at(V, p, q, a, b, c):
-    """`segment_may_meet_triangle` of ``V[p], V[q]`` and ``V[a], V[b], V[c]`` (indices into
-    the (N, 3) float64 positions `V`), reading coordinates instead of row views."""
-    px, py, pz = V[p, 0], V[p, 1], V[p, 2]
-    qx, qy, qz = V[q, 0], V[q, 1], V[q, 2]
-    ax, ay, az = V[a, 0], V[a, 1], V[a, 2]
-    bx, by, bz = V[b, 0], V[b, 1], V[b, 2]
-    cx, cy, cz = V[c, 0], V[c, 1], V[c, 2]
+def _segment_may_meet_xyz(px, py, pz, qx, qy, qz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    # `segment_may_meet_triangle` on coordinates.
     sp = _orient3d_xyz(ax, ay, az, bx, by, bz, cx, cy, cz, px, py, pz)
     if sp != 0 and sp == _orient3d_xyz(ax, ay, az, bx, by, bz, cx, cy, cz, qx, qy, qz):
         return False
@@ -82,18 +77,20 @@ def segment_may_meet_triangle_at(V, p, q, a, b, c):
     return True
 
 
+@njit(cache=True, inline="always")
+def segment_may_meet_triangle_at(V, p, q, a, b, c):
+    """`segment_may_meet_triangle` of ``V[p], V[q]`` and ``V[a], V[b], V[c]`` (indices into
+    the (N, 3) float64 positions `V`), reading coordinates instead of row views."""
+    return _segment_may_meet_xyz(V[p, 0], V[p, 1], V[p, 2], V[q, 0], V[q, 1], V[q, 2],
+                                 V[a, 0], V[a, 1], V[a, 2], V[b, 0], V[b, 1], V[b, 2],
+                                 V[c, 0], V[c, 1], V[c, 2])
+
+
 @njit(cache=True)
 def segment_may_meet_triangle(p, q, a, b, c):
     """False only when the closed segment [p, q] provably misses the closed triangle abc.
 
     All arguments (3,) float64.
     """
-    sp = orient3d_sign(a, b, c, p)
-    if sp != 0 and sp == orient3d_sign(a, b, c, q):
-        return False
-    s1 = orient3d_sign(p, q, a, b)
-    s2 = orient3d_sign(p, q, b, c)
-    s3 = orient3d_sign(p, q, c, a)
-    if (s1 > 0 or s2 > 0 or s3 > 0) and (s1 < 0 or s2 < 0 or s3 < 0):
-        return False
-    return True
+    return _segment_may_meet_xyz(p[0], p[1], p[2], q[0], q[1], q[2], a[0], a[1], a[2],
+                                 b[0], b[1], b[2], c[0], c[1], c[2])
