@@ -1,18 +1,35 @@
 """Broad phase: pairs of primitives whose swept, inflated axis-aligned boxes
 overlap, found with a uniform grid (dense or hashed) in Numba.
 
-Design. Every box of the "grid" set B is entered into the cells it covers;
-cells are cubes, twice the median box extent along the axis where that median
-is largest, doubled while a few huge boxes would cost too much. The cell table is dense while it has
-at most `_DENSE_FACTOR` cells per entry, else hashed (each entry keeps its
-cell key, so collisions cost time, never correctness). Each entry carries a
-copy of its box, so a cell is scanned sequentially. Each box of the query
-set A visits the cells it covers; a pair that overlaps in several cells is
-emitted only from the cell holding the lower corner of the two boxes'
-intersection, so no duplicate removal is needed. Boxes covering more than
-`_BIG_CELLS` cells (fast-moving or huge primitives) stay out of the grid and
-are tested against every box of the other set, so they cannot blow up the
-grid's memory. Queries run in parallel over chunks of the rows of A in one
+Design. The boxes of the "grid" set B are entered into a uniform grid of cubic
+cells, twice the median box extent along the axis where that median is largest,
+doubled while a few huge boxes would cost too much. The cell table is dense while
+it has at most `_DENSE_FACTOR` cells per entry, else hashed (each entry keeps its
+cell key, so collisions cost time, never correctness). Each entry carries a copy of
+its box, so a cell is scanned sequentially. Two layouts:
+
+- Lower corner (every query but a listed self query): each box is entered once, in
+  the cell of its lower corner, and the rows of the query set A scan their own cells
+  and `reach` layers below them, the largest span (in cells beyond the first) of the
+  grid's boxes along each axis, so each partner is found once. On a dense table a
+  row of cells along x is one run of entries. In the min folds of a self query a
+  row scans only the cells from its own on in key order: each pair is folded from
+  the row whose lower corner's cell comes first. Boxes spanning more than
+  `_MAX_REACH` cells (or one, when few do) stay out of the grid.
+- Covering (listed self queries, `_Plan(listing=True)`): each box is entered in every
+  cell it covers, each row visits its own cells from its first id above its own, and
+  a pair that overlaps in several cells is emitted only from the cell holding the
+  lower corner of the two boxes' intersection. Boxes covering more than `_BIG_CELLS`
+  cells stay out of the grid.
+
+Boxes kept out of the grid (fast-moving or huge primitives) are tested against every
+box of the other set, so they cannot blow up the grid's memory. Issue 13, A/B in one
+process each, 64K cloth: the lower-corner layout enters 130K face boxes instead of
+296K (their grid build 9.4 -> ~2 ms) and its rows scan no more entries; a covering
+grid stays faster for listed self queries, whose rows skip half of each cell by id
+(rods: the lower-corner scan with its reach layer was 1.1-1.3x slower).
+
+Queries run in parallel over chunks of the rows of A in one
 pass: each chunk writes its rows' partners into its own slots of a buffer sized
 from a sample of the rows (a chunk that runs out only counts from there on and
 is refilled at exact offsets), then the chunks are gathered in row order. The
@@ -25,11 +42,11 @@ queried by a second set of rows (`_Plan.with_rows`): the certificate path's edge
 candidates and vertex-face fold share the faces' grid (`start_pass`).
 
 Row scan (issue 13, A/B in one process against the previous version, same bits):
-the emit-once rule compares stored lower cell corners (`ent_clo`, the same `_cell`
-values: floor is monotone, so cell(max(a, b)) = max(cell(a), cell(b))) instead of
-three divisions per overlapping pair; a self query starts each bucket at its first
-id above the row (`_first_above`: entries are filled in id order); the box test is
-branch-free. Measured together: the scan alone 1.1-1.3x (64K yarn and cloth).
+the covering grid's emit-once rule compares stored lower cell corners (`ent_clo`, the
+same `_cell` values: floor is monotone, so cell(max(a, b)) = max(cell(a), cell(b)))
+instead of three divisions per overlapping pair; a self query starts each bucket at
+its first id above the row (`_first_above`: entries are filled in id order); the box
+test is branch-free. Measured together: the scan alone 1.1-1.3x (64K yarn and cloth).
 
 Pruned folds. Before evaluating a pair, the min folds bound its squared distance
 from below by its boxes (`_gap_sq`: per-axis gaps of the primitives, the boxes less
@@ -81,10 +98,19 @@ from .orient import segment_may_meet_triangle_at
 from ..parallel import parallel_kernel, use_parallel
 from ..topology import as_positions, as_topology, sort_segment
 
-#: A box covering more cells than this is "big" and tested by brute force
-#: (3 x 3 x 3 = 27 cells is the worst case of a box twice the cell size;
-#: 64 leaves room for moderately elongated boxes).
+#: A grid box spanning more than this many cells beyond its first along an axis is
+#: "big": kept out of the grid and tested by brute force. Every row scans `reach`
+#: cell layers below its own along each axis, the largest span of the grid's boxes.
+_MAX_REACH = 2
+#: A query box whose scan region (its cells and the reach) holds more cells than this
+#: is tested against every grid box instead.
+_BIG_ROW_CELLS = 512
+#: A covering grid (listed self queries) keeps a box covering more cells than this out
+#: (3 x 3 x 3 = 27 cells is the worst case of a box twice the cell size; 64 leaves room
+#: for moderately elongated boxes).
 _BIG_CELLS = 64
+#: Row scans in blocks of this many entries (the compacted scan's scratch, `_scan`).
+_SCAN_BLOCK = 256
 #: Cells per axis are capped so that a cell key fits int64 (2^20 ^ 3 = 2^60).
 _MAX_DIM = 1 << 20
 #: Brute-force budget for big boxes, in box tests per box of the scene, before
@@ -170,51 +196,96 @@ def _bucket(key, bits):
     return np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits))
 
 
-def _cell_ranges_py(lo, hi, origin, h, clo, chi, ncell, big_cells, top, n_big):
-    # Cell ranges and cell counts of the boxes; chunk c of STAT_CHUNKS keeps its largest
-    # chi per axis in top[c] and its count of boxes covering more than `big_cells`
-    # cells in n_big[c] (integer max and sum: exact, so any thread count).
+def _cell_ranges_py(lo, hi, origin, h, clo, chi, top, reach, n_over):
+    # Cell ranges of the boxes. Chunk c of STAT_CHUNKS keeps its largest chi per axis in
+    # top[c]; for r = 0 .. R - 1, the number of its boxes spanning more than r cells
+    # beyond their first along some axis in n_over[c, r], and the largest span per axis
+    # of the others in reach[c, r] (integer max and sum: exact, so any thread count).
     m = lo.shape[0]
     C = top.shape[0]
+    R = n_over.shape[1]
     for c in prange(C):
         for i in range(c * m // C, (c + 1) * m // C):
-            n = np.int64(1)
+            s = np.int64(0)
             for a in range(3):
                 clo[i, a] = _cell(lo[i, a], origin[a], h[a])
                 chi[i, a] = _cell(hi[i, a], origin[a], h[a])
-                n *= chi[i, a] - clo[i, a] + 1
                 top[c, a] = max(top[c, a], chi[i, a])
-            ncell[i] = n
-            n_big[c] += n > big_cells
+                s = max(s, chi[i, a] - clo[i, a])
+            for r in range(R):
+                if s > r:
+                    n_over[c, r] += 1
+                else:
+                    for a in range(3):
+                        reach[c, r, a] = max(reach[c, r, a], chi[i, a] - clo[i, a])
 
 
 _cell_ranges_k = parallel_kernel(_cell_ranges_py, "_bp_cell_ranges")
 
 
-def _cell_ranges(lo, hi, origin, h, clo, chi, ncell, big_cells):
-    """Cell ranges and cell counts of the boxes; returns (largest chi per axis, number
-    of boxes covering more than `big_cells` cells)."""
+def _cell_ranges(lo, hi, origin, h, clo, chi):
+    """Cell ranges of the boxes into clo, chi; returns (largest chi per axis (3,),
+    reach (R, 3), n_over (R,)) for R = _MAX_REACH + 1: n_over[r] boxes span more than r
+    cells beyond their first along some axis, and reach[r] is the others' largest span."""
     top = np.zeros((_STAT_CHUNKS, 3), dtype=np.int64)
+    reach = np.zeros((_STAT_CHUNKS, _MAX_REACH + 1, 3), dtype=np.int64)
+    n_over = np.zeros((_STAT_CHUNKS, _MAX_REACH + 1), dtype=np.int64)
+    _cell_ranges_k(lo.shape[0], lo, hi, origin, h, clo, chi, top, reach, n_over)
+    return top.max(axis=0), reach.max(axis=0), n_over.sum(axis=0)
+
+
+def _small_rows_py(clo, chi, reach, max_span, max_cells, small, n_big, n_cells):
+    # small[i]: box i spans at most max_span cells beyond its first along every axis and
+    # its scan region (its cells, `reach` more below) has at most max_cells cells; chunk c
+    # of STAT_CHUNKS counts the others in n_big[c] and the small ones' cells in n_cells[c].
+    m = clo.shape[0]
+    C = n_big.shape[0]
+    for c in prange(C):
+        for i in range(c * m // C, (c + 1) * m // C):
+            ok = True
+            cells = np.int64(1)
+            for a in range(3):
+                span = chi[i, a] - clo[i, a]
+                ok &= span <= max_span
+                cells *= min(span + 1 + reach[a], max_cells + 1)  # capped: no overflow
+            ok &= cells <= max_cells
+            small[i] = ok
+            n_big[c] += not ok
+            n_cells[c] += cells if ok else 0
+
+
+_small_rows_k = parallel_kernel(_small_rows_py, "_bp_small_rows")
+
+
+def _small_rows(clo, chi, reach, max_span, max_cells):
+    """((M,) bool, count of False, cells of the True ones): the boxes within `max_span`
+    and `max_cells` (`_small_rows_py`)."""
+    small = np.empty(clo.shape[0], dtype=np.bool_)
     n_big = np.zeros(_STAT_CHUNKS, dtype=np.int64)
-    _cell_ranges_k(lo.shape[0], lo, hi, origin, h, clo, chi, ncell, big_cells, top, n_big)
-    return top.max(axis=0), int(n_big.sum())
+    n_cells = np.zeros(_STAT_CHUNKS, dtype=np.int64)
+    _small_rows_k(clo.shape[0], clo, chi, np.asarray(reach, dtype=np.int64), np.int64(max_span),
+                  np.int64(max_cells), small, n_big, n_cells)
+    return small, int(n_big.sum()), int(n_cells.sum())
 
 
-def _grid_pass_py(clo, chi, small, dims, bits, lo, hi, bounds, slots, fill, ent_key, ent_id, ent_box, ent_clo):
-    # Chunk c visits the (box, cell) entries of boxes [bounds[c], bounds[c + 1]). Without
-    # `fill` it counts them per bucket into its own column of `slots` (nb, C); with it,
-    # it writes them at its own slots (`slots[:, c]`, from `_grid_offsets`), so the
-    # layout is that of one serial pass in id order. No shared writes either way.
+def _grid_pass_py(clo, chi, small, covering, dims, bits, lo, hi, bounds, slots, fill, ent_key, ent_id, ent_box,
+                  ent_clo):
+    # Chunk c enters boxes [bounds[c], bounds[c + 1]): each in every cell it covers
+    # (`covering`), else once, in the cell of its lower corner. Without `fill` it counts
+    # them per bucket into its own column of `slots` (nb, C); with it, it writes them at
+    # its own slots (`slots[:, c]`, from `_grid_offsets`), so the layout is that of one
+    # serial pass in id order. No shared writes either way.
     d0 = dims[0]
     d01 = dims[0] * dims[1]
     for c in prange(bounds.shape[0] - 1):
         for j in range(bounds[c], bounds[c + 1]):
             if not small[j]:
                 continue
-            for z in range(clo[j, 2], chi[j, 2] + 1):
-                for y in range(clo[j, 1], chi[j, 1] + 1):
+            top = chi[j] if covering else clo[j]
+            for z in range(clo[j, 2], top[2] + 1):
+                for y in range(clo[j, 1], top[1] + 1):
                     base = d0 * y + d01 * z
-                    for x in range(clo[j, 0], chi[j, 0] + 1):
+                    for x in range(clo[j, 0], top[0] + 1):
                         key = base + x
                         b = _bucket(key, bits)
                         f = slots[b, c]
@@ -227,27 +298,25 @@ def _grid_pass_py(clo, chi, small, dims, bits, lo, hi, bounds, slots, fill, ent_
                         for a in range(3):
                             ent_box[a, f] = lo[j, a]
                             ent_box[3 + a, f] = hi[j, a]
-                            ent_clo[f, a] = clo[j, a]
+                            if covering:
+                                ent_clo[f, a] = clo[j, a]
 
 
 @njit(cache=True)
 def _grid_offsets(counts):
-    """Bucket offsets (nb + 1,) and the largest bucket's size; turns `counts` (nb, C)
-    into each chunk's first slot in each bucket (chunk c after chunks < c: entries stay
-    in id order within a bucket)."""
+    """Bucket offsets (nb + 1,); turns `counts` (nb, C) into each chunk's first slot in
+    each bucket (chunk c after chunks < c: entries stay in id order within a bucket)."""
     nb, C = counts.shape
     boff = np.empty(nb + 1, dtype=np.int64)
     run = np.int64(0)
-    top = np.int64(0)
     for b in range(nb):
         boff[b] = run
         for c in range(C):
             k = counts[b, c]
             counts[b, c] = run
             run += k
-        top = max(top, run - boff[b])
     boff[nb] = run
-    return boff, top
+    return boff
 
 
 _grid_pass = parallel_kernel(_grid_pass_py, "_bp_grid_pass")
@@ -259,8 +328,11 @@ def _check_box_count(n):
         raise InputError(f"a broad-phase grid holds at most 2^31 - 1 boxes; got {n}")
 
 
-def _build_grid(clo, chi, small, dims, bits, nb, lo, hi, chunks=None):
-    """Counting sort of the (box, cell) entries by bucket, in id order within a bucket.
+def _build_grid(clo, chi, small, covering, dims, bits, nb, lo, hi, chunks=None):
+    """Counting sort of the small boxes' (box, cell) entries by bucket, in id order within
+    a bucket: (boff, ent_key, ent_id, ent_box, ent_clo). A covering grid enters each box
+    in every cell it covers and keeps its lower cell corner (`ent_clo`), else each box is
+    entered once, in the cell of its lower corner (and `ent_clo` is empty).
 
     Parallel over contiguous chunks of the boxes, one per thread, each counting and
     filling its own slots (`_grid_offsets` orders chunk c after chunks < c): the
@@ -272,25 +344,24 @@ def _build_grid(clo, chi, small, dims, bits, nb, lo, hi, chunks=None):
     C = chunks if chunks is not None else (numba.get_num_threads() if use_parallel(n) else 1)
     bounds = (np.arange(C + 1, dtype=np.int64) * n) // C
     counts = np.zeros((nb, C), dtype=np.int64)
-    _grid_pass(n, clo, chi, small, dims, bits, lo, hi, bounds, counts, False,
+    _grid_pass(n, clo, chi, small, covering, dims, bits, lo, hi, bounds, counts, False,
                np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int32), np.empty((6, 0)),
                np.empty((0, 3), dtype=np.int32))
-    boff, hit_cap = _grid_offsets(counts)
+    boff = _grid_offsets(counts)
     m = int(boff[nb])
     # Keys only for a hashed table: a dense one has one cell per bucket.
     ent_key = np.empty(m if bits >= 0 else 0, dtype=np.int64)
-    # int32 ids and cell corners (cells per axis <= _MAX_DIM = 2^20): the fill writes
-    # 64 instead of 80 bytes per entry, the scan reads less.
+    # int32 ids and cell corners (cells per axis <= _MAX_DIM = 2^20): less to write and scan.
     ent_id = np.empty(m, dtype=np.int32)
-    # A copy of each box in entry order: the query scans entries of a cell
-    # sequentially instead of gathering boxes by index (measured 1.5-2x faster),
-    # one coordinate per row (lo x, y, z, hi x, y, z): the scan's box tests over a
-    # bucket then read six contiguous runs (`_visit_row`).
+    # A copy of each box in entry order: the query scans entries sequentially instead
+    # of gathering boxes by index (measured 1.5-2x faster), one coordinate per row
+    # (lo x, y, z, hi x, y, z): the box tests over a run read six contiguous runs.
     ent_box = np.empty((6, m))
-    # And its lower cell corner, for the emit-once rule without a division per pair.
-    ent_clo = np.empty((m, 3), dtype=np.int32)
-    _grid_pass(n, clo, chi, small, dims, bits, lo, hi, bounds, counts, True, ent_key, ent_id, ent_box, ent_clo)
-    return boff, ent_key, ent_id, ent_box, ent_clo, int(hit_cap)
+    # A covering grid's lower cell corners, for its emit-once rule without a division per pair.
+    ent_clo = np.empty((m if covering else 0, 3), dtype=np.int32)
+    _grid_pass(n, clo, chi, small, covering, dims, bits, lo, hi, bounds, counts, True, ent_key, ent_id, ent_box,
+               ent_clo)
+    return boff, ent_key, ent_id, ent_box, ent_clo
 
 
 @njit(cache=True, inline="always")
@@ -427,18 +498,82 @@ def fold_pair_min(V, TA, i, TB, j, dmin, lb_sq):
 
 
 @njit(cache=True, inline="always")
-def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
-               loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box, ent_clo, compact,
-               bigB, gap_off, J, pos, lim, V, dmin, buf):
-    # 30 parameters, CPython's limit for a plain call: with more, the callers' calls compile
-    # through a tuple (CALL_FUNCTION_EX), which Numba's inliner refuses ("closure with *args").
-    # `origin` and `h` are unused here and can make room.
+def _scan(mode, i, box, TA, TB, bits, key, ent_key, ent_id, ent_box, ent_clo, compact, gap_off, e0, e1,
+          J, pos, lim, V, dmin, buf, above, corner, cell):
+    """Visit the grid entries [e0, e1) for row i (`box`: lo x, y, z, hi x, y, z); return
+    how many partners it found (`_visit_row`). Only ids above `above` count (-1: all),
+    on a hashed table (bits >= 0) only entries of cell `key`, and on a covering grid
+    only the pairs whose boxes' intersection has its lower corner in `cell` (`corner`:
+    the row's lower cell corner)."""
+    lx, ly, lz, hx, hy, hz = box
+    n = np.int64(0)
+    s = e0
+    while s < e1:
+        # `compact`: the box tests over a block first, branch-free, their hits compacted
+        # into `buf` (the coordinates are six contiguous runs). Where few entries hit,
+        # this avoids one unpredictable branch per entry; where many do, the extra pass
+        # costs more: see `_Plan`.
+        t = min(e1, s + buf.shape[0]) if compact else e1
+        nq = t - s
+        if compact:
+            nq = 0
+            if above < 0:  # (loop-invariant: the id load only where it decides)
+                for e in range(s, t):
+                    buf[nq] = e
+                    nq += _entry_overlaps(ent_box, e, lx, ly, lz, hx, hy, hz)
+            else:
+                for e in range(s, t):
+                    buf[nq] = e
+                    nq += _entry_overlaps(ent_box, e, lx, ly, lz, hx, hy, hz) & (ent_id[e] > above)
+        for q in range(nq):
+            e = buf[q] if compact else s + q
+            if not compact and not (_entry_overlaps(ent_box, e, lx, ly, lz, hx, hy, hz) and ent_id[e] > above):
+                continue
+            if bits >= 0 and ent_key[e] != key:
+                continue
+            # Covering grid: emit only from the cell holding the intersection's lower
+            # corner. _cell is monotone, so cell(max(a, b)) = max(cell(a), cell(b)), both
+            # cells computed by the same formula (cloA, ent_clo).
+            if ent_clo.shape[0] and (max(corner[0], ent_clo[e, 0]) != cell[0] or max(corner[1], ent_clo[e, 1]) != cell[1]
+                                     or max(corner[2], ent_clo[e, 2]) != cell[2]):
+                continue
+            j = ent_id[e]
+            if _adjacent(TA, i, TB, j):
+                continue
+            lb_sq = 0.0
+            if mode == MODE_MIN or mode == MODE_GLOBAL_MIN:
+                lb_sq = _gap_sq(lx, ly, lz, hx, hy, hz, ent_box[0, e], ent_box[1, e], ent_box[2, e],
+                                ent_box[3, e], ent_box[4, e], ent_box[5, e], gap_off)
+            n += 1 if mode == MODE_COUNT else _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin, lb_sq)
+        s = t
+    return n
+
+
+@njit(cache=True, inline="always")
+def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB, dims, bits, reach,
+               boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off, J, pos, lim, V, dmin, buf):
+    # At most 30 parameters (CPython's limit for a plain call): with more, the callers'
+    # calls compile through a tuple (CALL_FUNCTION_EX), which Numba's inliner refuses
+    # ("closure with *args").
     """Visit the partners j of row i; return how many there are.
 
     MODE_COUNT only counts; MODE_FILL writes the partners j into J from `pos` on
     (below `lim`; the count goes on beyond it);
     MODE_MIN folds the squared pair distance into `dmin` (per vertex), MODE_GLOBAL_MIN
     into ``dmin[0]``.
+
+    Two grid layouts (`_Plan`). A covering grid (``ent_clo`` not empty, reach 0) holds
+    each box in every cell it covers: the row visits its own cells, and a pair is
+    emitted from the cell of its boxes' intersection's lower corner only. Otherwise each
+    grid box is stored once, in the cell of its lower corner, and spans at most
+    ``reach[a]`` cells beyond it along axis a; a box meeting row i's therefore has its
+    lower corner's cell in [cloA - reach, chiA] per axis (cells are monotone in the
+    coordinate), the region scanned. In a self query (the grid boxes are the small rows)
+    a pair of grid boxes is found from one row only: on a covering grid or when pairs
+    are listed, the smaller id's (rows i < j); in the min folds on a lower-corner grid,
+    whose order does not matter, the row whose lower corner's cell comes first in key
+    order (the smaller id in a shared cell), so that a row scans only the cells from its
+    own on, about half the region.
     """
     n = np.int64(0)
     if not smallA[i]:
@@ -448,52 +583,34 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
                 n += 1 if mode == MODE_COUNT else _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin,
                                                                     _big_gap_sq(loA, hiA, i, loB, hiB, j, mode, gap_off))
         return n
-    lx, ly, lz = loA[i, 0], loA[i, 1], loA[i, 2]
-    hx, hy, hz = hiA[i, 0], hiA[i, 1], hiA[i, 2]
-    cx, cy, cz = cloA[i, 0], cloA[i, 1], cloA[i, 2]
-    for z in range(cloA[i, 2], chiA[i, 2] + 1):
-        for y in range(cloA[i, 1], chiA[i, 1] + 1):
-            for x in range(cloA[i, 0], chiA[i, 0] + 1):
-                key = x + dims[0] * (y + dims[1] * z)
-                b = _bucket(key, bits)
-                e0 = boff[b]
-                if self_query:
-                    # A bucket's entries are in ascending id (filled in id order):
-                    # start at the first j > i instead of testing every j <= i.
-                    e0 = _first_above(ent_id, e0, boff[b + 1], i)
-                # `compact`: the box tests over the bucket first, branch-free, their
-                # hits compacted into `buf` (the coordinates are six contiguous runs).
-                # Where few entries hit, this avoids one unpredictable branch per entry
-                # (64K yarn: ~10% hit, scan 1.3-1.5x faster); where many do, the extra
-                # pass costs more (64K cloth: ~30% hit, 0.9x): see `_Plan`.
-                e1 = boff[b + 1]
-                nq = e1 - e0
-                if compact:
-                    nq = 0
-                    for e in range(e0, e1):
-                        buf[nq] = e
-                        nq += _entry_overlaps(ent_box, e, lx, ly, lz, hx, hy, hz)
-                for q in range(nq):
-                    e = buf[q] if compact else e0 + q
-                    if not compact and not _entry_overlaps(ent_box, e, lx, ly, lz, hx, hy, hz):
-                        continue
-                    # A dense table has one cell per bucket: no key check needed.
-                    if bits >= 0 and ent_key[e] != key:
-                        continue
-                    j = ent_id[e]
-                    # Emit only from the cell holding the intersection's lower corner:
-                    # _cell is monotone, so cell(max(a, b)) = max(cell(a), cell(b)), both
-                    # cells already computed by the same formula (cloA, ent_clo).
-                    if (max(cx, ent_clo[e, 0]) != x or max(cy, ent_clo[e, 1]) != y
-                            or max(cz, ent_clo[e, 2]) != z):
-                        continue
-                    if _adjacent(TA, i, TB, j):
-                        continue
-                    lb_sq = 0.0
-                    if mode == MODE_MIN or mode == MODE_GLOBAL_MIN:
-                        lb_sq = _gap_sq(lx, ly, lz, hx, hy, hz, ent_box[0, e], ent_box[1, e], ent_box[2, e],
-                                        ent_box[3, e], ent_box[4, e], ent_box[5, e], gap_off)
-                    n += 1 if mode == MODE_COUNT else _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin, lb_sq)
+    box = (loA[i, 0], loA[i, 1], loA[i, 2], hiA[i, 0], hiA[i, 1], hiA[i, 2])
+    corner = (cloA[i, 0], cloA[i, 1], cloA[i, 2])
+    cx, cy, cz = corner
+    x0, x1 = max(cx - reach[0], 0), min(chiA[i, 0], dims[0] - 1)
+    y0, y1 = max(cy - reach[1], 0), min(chiA[i, 1], dims[1] - 1)
+    z0, z1 = max(cz - reach[2], 0), min(chiA[i, 2], dims[2] - 1)
+    covering = ent_clo.shape[0] > 0
+    half = self_query and not covering and (mode == MODE_MIN or mode == MODE_GLOBAL_MIN)
+    above = self_query and not half  # only ids above i
+    for z in range(cz if half else z0, z1 + 1):
+        for y in range(cy if half and z == cz else y0, y1 + 1):
+            row = dims[0] * (y + dims[1] * z)
+            own = half and z == cz and y == cy  # this run starts at row i's own cell
+            xs = cx if own else x0
+            if bits < 0 and not covering:
+                # Dense table: the cells xs..x1 are consecutive buckets, one run of entries
+                # (a cell's entries are in ascending id, filled in id order).
+                e0 = _first_above(ent_id, boff[row + xs], boff[row + xs + 1], i) if own else boff[row + xs]
+                n += _scan(mode, i, box, TA, TB, bits, 0, ent_key, ent_id, ent_box, ent_clo, compact, gap_off,
+                           e0, boff[row + x1 + 1], J, pos + n, lim, V, dmin, buf, i if above else -1, corner,
+                           corner)
+                continue
+            for x in range(xs, x1 + 1):
+                key = row + x
+                b = _bucket(key, bits)  # a dense table's bucket is its key
+                e0 = _first_above(ent_id, boff[b], boff[b + 1], i) if above or (own and x == xs) else boff[b]
+                n += _scan(mode, i, box, TA, TB, bits, key, ent_key, ent_id, ent_box, ent_clo, compact, gap_off,
+                           e0, boff[b + 1], J, pos + n, lim, V, dmin, buf, -1, corner, (x, y, z))
     for kb in range(bigB.shape[0]):
         j = bigB[kb]
         if self_query and j <= i:
@@ -505,7 +622,7 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
 
 
 def _fill_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                    origin, h, dims, bits, boff, ent_key, ent_id, ent_box, ent_clo, hit_cap, compact, bigB, gap_off,
+                    dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
                     starts, todo, bstart, blim, counts, J, full, mode, V):
     """One pass over the rows of the chunks marked in `todo`, filling and counting.
 
@@ -523,12 +640,12 @@ def _fill_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
         pos = bstart[c]
         lim = blim[c]
         over = False
-        buf = np.empty(hit_cap, dtype=np.int64)
+        buf = np.empty(_SCAN_BLOCK, dtype=np.int64)
         for i in range(starts[c], starts[c + 1]):
             # once full, the same mode only counts (no slot below a limit of -1)
-            n = _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
-                           loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box,
-                           ent_clo, compact, bigB, gap_off, J, pos, -1 if over else lim, V, dmin, buf)
+            n = _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
+                           dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
+                           J, pos, -1 if over else lim, V, dmin, buf)
             counts[i] = n
             if not over:
                 if pos + n > lim:
@@ -540,7 +657,7 @@ def _fill_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
 
 
 def _min_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-              origin, h, dims, bits, boff, ent_key, ent_id, ent_box, ent_clo, hit_cap, compact, bigB, gap_off, V,
+              dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off, V,
               partial, mode):
     # Chunk c owns rows [c m / C, (c + 1) m / C) and writes only partial[c]:
     # no shared writes; min is exact, so the result is thread-count independent.
@@ -548,11 +665,11 @@ def _min_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
     n_chunks = partial.shape[0]
     m = loA.shape[0]
     for c in prange(n_chunks):
-        buf = np.empty(hit_cap, dtype=np.int64)
+        buf = np.empty(_SCAN_BLOCK, dtype=np.int64)
         for i in range(c * m // n_chunks, (c + 1) * m // n_chunks):
-            _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA,
-                       loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box,
-                       ent_clo, compact, bigB, gap_off, J, 0, 0, V, partial[c], buf)
+            _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
+                       dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
+                       J, 0, 0, V, partial[c], buf)
 
 
 # Serial and parallel builds of the row passes (each row / chunk writes only its own
@@ -601,18 +718,24 @@ def _median_extents(sample):
 
 
 @njit(cache=True)
-def _hit_rate(rows, self_query, loA, hiA, cloA, chiA, smallA, dims, bits, boff, ent_id, ent_box):
-    """(entries scanned, entries whose box overlaps the row's) over the grid buckets
-    of the sampled `rows` (the key check of a hashed table left out)."""
+def _hit_rate(rows, self_query, loA, hiA, cloA, chiA, smallA, dims, bits, reach, boff, ent_id, ent_box):
+    """(entries scanned, entries whose box overlaps the row's) over the scan regions of
+    the sampled `rows`, as `_visit_row` scans them to list pairs (the key check of a
+    hashed table left out)."""
     scanned = 0
     hits = 0
     for i in rows:
         if not smallA[i]:
             continue
-        for z in range(cloA[i, 2], chiA[i, 2] + 1):
-            for y in range(cloA[i, 1], chiA[i, 1] + 1):
-                for x in range(cloA[i, 0], chiA[i, 0] + 1):
-                    b = _bucket(x + dims[0] * (y + dims[1] * z), bits)
+        cx, cy, cz = cloA[i, 0], cloA[i, 1], cloA[i, 2]
+        x0, x1 = max(cx - reach[0], 0), min(chiA[i, 0], dims[0] - 1)
+        y0, y1 = max(cy - reach[1], 0), min(chiA[i, 1], dims[1] - 1)
+        z0, z1 = max(cz - reach[2], 0), min(chiA[i, 2], dims[2] - 1)
+        for z in range(z0, z1 + 1):
+            for y in range(y0, y1 + 1):
+                row = dims[0] * (y + dims[1] * z)
+                for x in range(x0, x1 + 1):
+                    b = _bucket(row + x, bits)
                     e0 = _first_above(ent_id, boff[b], boff[b + 1], i) if self_query else boff[b]
                     for e in range(e0, boff[b + 1]):
                         scanned += 1
@@ -623,16 +746,16 @@ def _hit_rate(rows, self_query, loA, hiA, cloA, chiA, smallA, dims, bits, boff, 
 
 @njit(cache=True)
 def _sample_counts(rows, mode, V, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                   origin, h, dims, bits, boff, ent_key, ent_id, ent_box, ent_clo, hit_cap, compact, bigB, gap_off):
+                   dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off):
     """(len(rows),) int64: the partner count of each sampled row."""
     J = np.empty(0, dtype=np.int64)
     dmin = np.empty(0)
-    buf = np.empty(hit_cap, dtype=np.int64)
+    buf = np.empty(_SCAN_BLOCK, dtype=np.int64)
     out = np.empty(rows.shape[0], dtype=np.int64)
     for k in range(rows.shape[0]):
-        out[k] = _visit_row(mode, rows[k], self_query, loA, hiA, TA, cloA, chiA, smallA,
-                            loB, hiB, TB, origin, h, dims, bits, boff, ent_key, ent_id, ent_box,
-                            ent_clo, compact, bigB, gap_off, J, 0, -1, V, dmin, buf)
+        out[k] = _visit_row(mode, rows[k], self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
+                            dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
+                            J, 0, -1, V, dmin, buf)
     return out
 
 
@@ -697,9 +820,12 @@ def _pairs_pass(args, n, mode=MODE_FILL, V=None):
 
 
 class _Plan:
-    """Boxes of both sets on one hashed grid; see the module docstring."""
+    """Boxes of both sets on one grid; see the module docstring. `listing` (self queries
+    only): the plan lists pairs (a covering grid) rather than folds minima (a
+    lower-corner grid, whose folds scan half the region); either layout answers every
+    query, only the speed differs."""
 
-    def __init__(self, loA, hiA, TA, loB, hiB, TB, self_query, inflation=0.0):
+    def __init__(self, loA, hiA, TA, loB, hiB, TB, self_query, inflation=0.0, listing=True):
         self.self_query = bool(self_query)
         self.loA, self.hiA, self.TA = loA, hiA, TA
         self.loB, self.hiB, self.TB = loB, hiB, TB
@@ -732,27 +858,39 @@ class _Plan:
         h = np.full(3, h.max())
         h = np.maximum(h, spans / (_MAX_DIM - 2))
         budget = _BIG_WORK_PER_BOX * (nA + nB)
+        covering = self.self_query and listing
         while True:
-            cloA, chiA, ncA, topA, n_bigA = self._ranges(loA, hiA, origin, h)
-            cloB, chiB, ncB, topB, n_bigB = ((cloA, chiA, ncA, topA, n_bigA) if self_query
-                                             else self._ranges(loB, hiB, origin, h))
+            cloB, chiB, topB, reachB, overB = self._ranges(loB, hiB, origin, h)
+            if covering:  # each box in the cells it covers: no reach
+                reach = np.zeros(3, dtype=np.int64)
+                smallB, n_bigB, entries = _small_rows(cloB, chiB, reach, _MAX_DIM, _BIG_CELLS)
+            else:
+                # The fewest reach layers (>= 1) whose big grid boxes fit the brute-force budget.
+                r = next((r for r in range(1, _MAX_REACH + 1) if overB[r] * nA <= budget), _MAX_REACH)
+                reach, n_bigB, entries = np.ascontiguousarray(reachB[r]), int(overB[r]), nB - int(overB[r])
+            if self_query:  # the rows are the grid's boxes: small rows are the small boxes
+                cloA, chiA, topA, n_bigA = cloB, chiB, topB, n_bigB
+            else:
+                cloA, chiA, topA = self._ranges(loA, hiA, origin, h)[:3]
+                smallA, n_bigA, _ = _small_rows(cloA, chiA, reach, _MAX_DIM, _BIG_ROW_CELLS)
             work = n_bigA * nB + n_bigB * nA
             if work <= budget or np.all(h >= spans):
                 break
             h = 2.0 * h
-        smallA, smallB = ncA <= _BIG_CELLS, ncB <= _BIG_CELLS
+        if not covering:
+            smallB = _small_rows(cloB, chiB, np.zeros(3, dtype=np.int64), r, (r + 1) ** 3)[0]
+        if self_query:
+            smallA = smallB
         dims = np.maximum(topA, topB) + 1
-        entries = int(ncB[smallB].sum())
         n_dense = int(dims[0]) * int(dims[1]) * int(dims[2])
         if n_dense <= _DENSE_FACTOR * entries + 4096:
             bits, nb = -1, n_dense
         else:
             bits = max(1, int(np.ceil(np.log2(max(2 * entries, 2)))))
             nb = 1 << bits
-        # hit_cap: the scratch of the row scan, one bucket's box hits (`_visit_row`)
-        self.boff, self.ent_key, self.ent_id, self.ent_box, self.ent_clo, self.hit_cap = _build_grid(
-            cloB, chiB, smallB, dims, bits, nb, loB, hiB)
-        self.origin, self.h, self.dims, self.bits = origin, h, dims, bits
+        self.boff, self.ent_key, self.ent_id, self.ent_box, self.ent_clo = _build_grid(
+            cloB, chiB, smallB, covering, dims, bits, nb, loB, hiB)
+        self.origin, self.h, self.dims, self.bits, self.reach = origin, h, dims, bits, reach
         self._set_rows(loA, hiA, TA, cloA, chiA, smallA)
         self.bigB = np.ascontiguousarray(np.flatnonzero(~smallB).astype(np.int64))
 
@@ -766,7 +904,7 @@ class _Plan:
             # the rows' buckets; the choice changes the time, never the pairs).
             rows = np.arange(0, nA, max(1, nA // _SAMPLE_ROWS), dtype=np.int64)
             scanned, hits = _hit_rate(rows, self.self_query, loA, hiA, cloA, chiA, smallA, self.dims,
-                                      self.bits, self.boff, self.ent_id, self.ent_box)
+                                      self.bits, self.reach, self.boff, self.ent_id, self.ent_box)
             self.compact = bool(hits < _COMPACT_HIT_RATE * scanned)
 
     def with_rows(self, loA, hiA, TA, inflation):
@@ -780,27 +918,25 @@ class _Plan:
         cornA = _box_corners(loA, hiA)
         if np.any(cornA[0] < self.origin):
             return None
-        cloA, chiA, ncA, topA, _ = self._ranges(loA, hiA, self.origin, self.h)
+        cloA, chiA, topA, _, _ = self._ranges(loA, hiA, self.origin, self.h)
         if np.any(topA >= self.dims):
             return None
         plan = copy.copy(self)
         plan.gap_off = 2.0 * float(inflation) - _PRUNE_SLACK * max(float(np.abs(cornA).max()), self.scaleB)
-        plan._set_rows(loA, hiA, TA, cloA, chiA, ncA <= _BIG_CELLS)
+        plan._set_rows(loA, hiA, TA, cloA, chiA, _small_rows(cloA, chiA, self.reach, _MAX_DIM, _BIG_ROW_CELLS)[0])
         return plan
 
     @staticmethod
     def _ranges(lo, hi, origin, h):
+        """(clo, chi, top, reach, n_over) of the boxes (`_cell_ranges`)."""
         clo = np.empty(lo.shape, dtype=np.int64)
         chi = np.empty(lo.shape, dtype=np.int64)
-        ncell = np.empty(lo.shape[0], dtype=np.int64)
-        top, n_big = _cell_ranges(lo, hi, origin, h, clo, chi, ncell, _BIG_CELLS)
-        return clo, chi, ncell, top, int(n_big)
+        return (clo, chi, *_cell_ranges(lo, hi, origin, h, clo, chi))
 
     def _args(self):
         return (self.self_query, self.loA, self.hiA, self.TA, self.cloA, self.chiA, self.smallA,
-                self.loB, self.hiB, self.TB, self.origin, self.h, self.dims, self.bits,
-                self.boff, self.ent_key, self.ent_id, self.ent_box, self.ent_clo, self.hit_cap, self.compact, self.bigB,
-                self.gap_off)
+                self.loB, self.hiB, self.TB, self.dims, self.bits, self.reach,
+                self.boff, self.ent_key, self.ent_id, self.ent_box, self.ent_clo, self.compact, self.bigB, self.gap_off)
 
     def pairs(self):
         """(K, 2) int64 rows (i, j), sorted lexicographically.
@@ -993,7 +1129,7 @@ def fold_min_sq(x, TA, TB, inflation, partial, self_query):
     """
     loA, hiA = _box_arrays(x, x, TA, inflation)
     loB, hiB = (loA, hiA) if self_query else _box_arrays(x, x, TB, inflation)
-    _Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation).min_sq_into(x, partial)
+    _Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation, listing=False).min_sq_into(x, partial)
 
 
 def min_pair_sq(x, TA, TB, inflation, self_query) -> float:
@@ -1016,7 +1152,7 @@ def min_pair_sq(x, TA, TB, inflation, self_query) -> float:
     """
     loA, hiA = _box_arrays(x, x, TA, inflation)
     loB, hiB = (loA, hiA) if self_query else _box_arrays(x, x, TB, inflation)
-    return _global_min(_Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation), x)
+    return _global_min(_Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation, listing=False), x)
 
 
 def start_pass(x, E, F, vertices, inflation):
@@ -1063,7 +1199,7 @@ def start_pass(x, E, F, vertices, inflation):
                 vf = _Plan(loV, hiV, TV, loF, hiF, F, False, inflation)
             d2 = _global_min(vf, x)
     if len(E) > 1:
-        d2 = min(d2, _global_min(_Plan(loE, hiE, E, loE, hiE, E, True, inflation), x))
+        d2 = min(d2, _global_min(_Plan(loE, hiE, E, loE, hiE, E, True, inflation, listing=False), x))
     return cand, d2
 
 

@@ -354,30 +354,72 @@ def test_box_bound_is_below_every_pair_distance(rng):
 
 
 @pytest.mark.parametrize("offset", [0.0, 1e6], ids=["near-origin", "far-from-origin"])
-def test_emit_once_rule_on_stored_cells(rng, offset):
-    # The emit-once rule compares stored lower cell corners (no division per pair):
-    # every overlapping pair exactly once, on dense and hashed grids, near and far
-    # from the origin (where cell arithmetic rounds most).
+def test_each_pair_found_once_from_lower_corner_cells(rng, offset):
+    # Each grid box is stored once, in its lower corner's cell; rows scan the reach below
+    # their cells (a self query only the cells after its own): every overlapping pair
+    # exactly once, on dense and hashed grids, near and far from the origin (where cell
+    # arithmetic rounds most).
     V, F = cloth(16, rng)
     V = V + offset
     E = edges_from_faces(F)
     V1 = _motion("swept", V, rng)
     for VV in (V1, np.concatenate([V1, V1 + 1e4])):
         EE = E if len(VV) == len(V) else np.concatenate([E, E + len(V)])
+        FF = F if len(VV) == len(V) else np.concatenate([F, F + len(V)])
         V0 = V if len(VV) == len(V) else np.concatenate([V, V + 1e4])
         np.testing.assert_array_equal(edge_edge_candidates(V0, VV, EE, 0.01),
                                       edge_edge_candidates_brute(V0, VV, EE, 0.01))
+        np.testing.assert_array_equal(vertex_face_candidates(V0, VV, FF, 0.01),
+                                      vertex_face_candidates_brute(V0, VV, FF, 0.01))
+        # the min fold of a self query (each pair from the row whose cell comes first)
+        pairs = edge_edge_candidates_brute(VV, VV, EE, 0.01)
+        assert len(pairs) > 0
+        want = min(bp._pair_sq(VV, EE, i, EE, j) for i, j in pairs)
+        assert bp.min_pair_sq(VV, EE, EE, 0.01, True) == want
 
 
-def _grid_oracle(clo, chi, small, dims, bits, lo, hi):
-    # One (box, cell) entry per covered cell, boxes in id order, stably sorted by bucket.
+@pytest.mark.parametrize("long_share", [4, 400], ids=["many-long", "few-long"])
+def test_reach_covers_boxes_spanning_several_cells(long_share):
+    # Segments of two lengths: with a long one in every 4, too many to brute-force, the
+    # rows scan two cell layers below their own (reach 2); with one in 400 they stay out
+    # of the grid (reach 1). Every pair is found once either way, for the listed pairs
+    # (rows i < j), the vertex-face pairs and the folds.
+    rng = np.random.default_rng(5)
+    n = 3000
+    P = rng.uniform(0, 1, size=(n, 3))
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    L = np.where(np.arange(n) % long_share == 0, 0.1, 0.025)
+    V = np.concatenate([P, P + d * L[:, None]])
+    E = np.stack([np.arange(n), np.arange(n) + n], 1).astype(np.int64)
+    lo, hi = bp._box_arrays(V, V, E, 0.0)
+    plan = bp._Plan(lo, hi, E, lo, hi, E, True, listing=False)  # the min folds' layout
+    assert (plan.reach.max(), plan.bigB.size > 0) == ((2, False) if long_share == 4 else (1, True))
+    np.testing.assert_array_equal(plan.pairs(), edge_edge_candidates_brute(V, V, E))
+    np.testing.assert_array_equal(bp.edge_edge_candidates(V, V, E), edge_edge_candidates_brute(V, V, E))
+    part = np.full((3, len(V)), np.inf)
+    plan.min_sq_into(V, part)
+    want = np.full(len(V), np.inf)
+    for i, j in edge_edge_candidates_brute(V, V, E):
+        d2 = bp._pair_sq(V, E, i, E, j)
+        want[E[[i, j]].ravel()] = np.minimum(want[E[[i, j]].ravel()], d2)
+    np.testing.assert_array_equal(part.min(axis=0), want)
+    assert bp.min_pair_sq(V, E, E, 0.0, True) == want.min()
+    F = np.stack([E[:, 0], E[:, 1], E[::-1, 0]], 1)  # long and short triangles
+    np.testing.assert_array_equal(vertex_face_candidates(V, V, F), vertex_face_candidates_brute(V, V, F))
+
+
+def _grid_oracle(clo, chi, small, dims, bits, covering):
+    # One entry per small box and cell it covers (`covering`), or per small box in the
+    # cell of its lower corner; boxes in id order, stably sorted by bucket.
     rows = []
     for j in range(clo.shape[0]):
         if not small[j]:
             continue
-        for z in range(clo[j, 2], chi[j, 2] + 1):
-            for y in range(clo[j, 1], chi[j, 1] + 1):
-                for x in range(clo[j, 0], chi[j, 0] + 1):
+        top = chi[j] if covering else clo[j]
+        for z in range(clo[j, 2], top[2] + 1):
+            for y in range(clo[j, 1], top[1] + 1):
+                for x in range(clo[j, 0], top[0] + 1):
                     key = int(x + dims[0] * (y + dims[1] * z))
                     rows.append((int(bp._bucket(key, bits)), key, j))
     b, key, ids = (np.array(c, dtype=np.int64) for c in zip(*rows))
@@ -385,32 +427,44 @@ def _grid_oracle(clo, chi, small, dims, bits, lo, hi):
     return b[order], key[order], ids[order]
 
 
+@pytest.mark.parametrize("listing", [True, False], ids=["covering", "lower-corner"])
 @pytest.mark.parametrize("sparse", [False, True], ids=["dense", "hashed"])
 @pytest.mark.parametrize("chunks", [1, 2, 3, 7])
-def test_grid_build_is_one_serial_pass_for_any_chunking(rng, sparse, chunks):
+def test_grid_build_is_one_serial_pass_for_any_chunking(rng, sparse, chunks, listing):
     # The chunked counting sort (one chunk per thread) must lay out the entries as one
-    # serial pass in id order: ids ascending within a bucket, each with its own box.
+    # serial pass in id order: ids ascending within a bucket, each with its own box. A
+    # listed self query's grid covers cells (reach 0, big boxes cover > _BIG_CELLS cells);
+    # the min folds' grid stores each box at its lower corner (big boxes span more cells
+    # than the reach's cap, the reach is the others' largest span).
     V, E = rods(8, 40, rng)
     if sparse:
         V = np.concatenate([V, V + 1e4])
         E = np.concatenate([E, E + len(V) // 2])
-    V1 = _fast_movers(V, rng, k=3, scale=2.0)  # a few big boxes stay out of the grid
+    V1 = _fast_movers(V, rng, k=3, scale=0.5 if not listing else 2.0)  # a few big boxes stay out of the grid
     lo, hi = bp._box_arrays(V, V1, E, 0.01)
-    plan = bp._Plan(lo, hi, E, lo, hi, E, True)
+    plan = bp._Plan(lo, hi, E, lo, hi, E, True, listing=listing)
     assert (plan.bits >= 0) == sparse and (~plan.smallA).any()
+    np.testing.assert_array_equal(plan.bigB, np.flatnonzero(~plan.smallA))
+    span = plan.chiA - plan.cloA
+    if listing:
+        cells = np.prod(span + 1, axis=1)
+        assert cells[plan.smallA].max() <= bp._BIG_CELLS < cells[~plan.smallA].min()
+        assert not plan.reach.any()
+    else:
+        s = span.max(axis=1)
+        assert s[plan.smallA].max() < s[~plan.smallA].min() and s[plan.smallA].max() <= bp._MAX_REACH
+        np.testing.assert_array_equal(plan.reach, span[plan.smallA].max(axis=0))
     nb = plan.boff.size - 1
-    boff, ent_key, ent_id, ent_box, ent_clo, hit_cap = bp._build_grid(
-        plan.cloA, plan.chiA, plan.smallA, plan.dims, plan.bits, nb, lo, hi, chunks=chunks)
-    b, key, ids = _grid_oracle(plan.cloA, plan.chiA, plan.smallA, plan.dims, plan.bits, lo, hi)
+    got = bp._build_grid(plan.cloA, plan.chiA, plan.smallA, listing, plan.dims, plan.bits, nb, lo, hi, chunks=chunks)
+    boff, ent_key, ent_id, ent_box, ent_clo = got
+    b, key, ids = _grid_oracle(plan.cloA, plan.chiA, plan.smallA, plan.dims, plan.bits, listing)
     np.testing.assert_array_equal(boff, np.searchsorted(b, np.arange(nb + 1)))
-    assert hit_cap == np.bincount(b, minlength=nb).max() == plan.hit_cap
     np.testing.assert_array_equal(ent_id, ids)
     np.testing.assert_array_equal(ent_box, np.hstack([lo, hi])[ids].T)
-    np.testing.assert_array_equal(ent_clo, plan.cloA[ids])
+    np.testing.assert_array_equal(ent_clo, plan.cloA[ids] if listing else np.zeros((0, 3)))
     if sparse:
         np.testing.assert_array_equal(ent_key, key)
-    for name, arr in zip(("boff", "ent_key", "ent_id", "ent_box", "ent_clo"),
-                         (boff, ent_key, ent_id, ent_box, ent_clo)):
+    for name, arr in zip(("boff", "ent_key", "ent_id", "ent_box", "ent_clo"), got):
         np.testing.assert_array_equal(getattr(plan, name), arr)
 
 
@@ -479,13 +533,12 @@ def test_plan_chooses_the_compacted_scan_where_few_entries_hit(rng):
 
 
 def test_grid_entries_store_int32_ids_and_refuse_more_boxes():
-    # int32 entry ids and cell corners (cells per axis are capped at 2^20); a grid of
+    # int32 entry ids (cells per axis are capped at 2^20, keys fit int64); a grid of
     # 2^31 boxes or more is refused instead of wrapping the ids.
     V, E = rods(4, 10, np.random.default_rng(0))
     lo, hi = bp._box_arrays(V, V, E, 0.01)
     plan = bp._Plan(lo, hi, E, lo, hi, E, True, 0.01)
-    assert plan.ent_id.dtype == np.int32 and plan.ent_clo.dtype == np.int32
-    assert int(plan.ent_clo.max()) < bp._MAX_DIM
+    assert plan.ent_id.dtype == np.int32 and np.all(plan.dims <= bp._MAX_DIM)
     bp._check_box_count((1 << 31) - 1)
     with pytest.raises(InputError, match="at most 2\\^31 - 1 boxes; got 2147483648"):
         bp._check_box_count(1 << 31)
