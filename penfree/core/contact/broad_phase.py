@@ -199,9 +199,10 @@ def _bucket(key, bits):
 
 def _cell_ranges_py(lo, hi, origin, h, clo, chi, top, reach, n_over):
     # Cell ranges of the boxes. Chunk c of STAT_CHUNKS keeps its largest chi per axis in
-    # top[c]; for r = 0 .. R - 1, the number of its boxes spanning more than r cells
-    # beyond their first along some axis in n_over[c, r], and the largest span per axis
-    # of the others in reach[c, r] (integer max and sum: exact, so any thread count).
+    # top[c]; for r = 1 .. R - 1 (slot 0 unused: the reach is at least 1), the number of
+    # its boxes spanning more than r cells beyond their first along some axis in
+    # n_over[c, r], and the largest span per axis of the others in reach[c, r] (integer
+    # max and sum: exact, so any thread count).
     m = lo.shape[0]
     C = top.shape[0]
     R = n_over.shape[1]
@@ -213,7 +214,7 @@ def _cell_ranges_py(lo, hi, origin, h, clo, chi, top, reach, n_over):
                 chi[i, a] = _cell(hi[i, a], origin[a], h[a])
                 top[c, a] = max(top[c, a], chi[i, a])
                 s = max(s, chi[i, a] - clo[i, a])
-            for r in range(R):
+            for r in range(1, R):
                 if s > r:
                     n_over[c, r] += 1
                 else:
@@ -226,8 +227,9 @@ _cell_ranges_k = parallel_kernel(_cell_ranges_py, "_bp_cell_ranges")
 
 def _cell_ranges(lo, hi, origin, h, clo, chi):
     """Cell ranges of the boxes into clo, chi; returns (largest chi per axis (3,),
-    reach (R, 3), n_over (R,)) for R = _MAX_REACH + 1: n_over[r] boxes span more than r
-    cells beyond their first along some axis, and reach[r] is the others' largest span."""
+    reach (R, 3), n_over (R,)) for R = _MAX_REACH + 1: for r >= 1, n_over[r] boxes span
+    more than r cells beyond their first along some axis, and reach[r] is the others'
+    largest span (row 0 unused)."""
     top = np.zeros((_STAT_CHUNKS, 3), dtype=np.int64)
     reach = np.zeros((_STAT_CHUNKS, _MAX_REACH + 1, 3), dtype=np.int64)
     n_over = np.zeros((_STAT_CHUNKS, _MAX_REACH + 1), dtype=np.int64)
@@ -868,7 +870,9 @@ class _Plan:
             else:
                 # The fewest reach layers (>= 1) whose big grid boxes fit the brute-force budget.
                 r = next((r for r in range(1, _MAX_REACH + 1) if overB[r] * nA <= budget), _MAX_REACH)
-                reach, n_bigB, entries = np.ascontiguousarray(reachB[r]), int(overB[r]), nB - int(overB[r])
+                reach = np.ascontiguousarray(reachB[r])
+                smallB, n_bigB, _ = _small_rows(cloB, chiB, np.zeros(3, dtype=np.int64), r, (r + 1) ** 3)
+                entries = nB - n_bigB
             if self_query:  # the rows are the grid's boxes: small rows are the small boxes
                 cloA, chiA, topA, n_bigA = cloB, chiB, topB, n_bigB
             else:
@@ -878,8 +882,6 @@ class _Plan:
             if work <= budget or np.all(h >= spans):
                 break
             h = 2.0 * h
-        if not covering:
-            smallB = _small_rows(cloB, chiB, np.zeros(3, dtype=np.int64), r, (r + 1) ** 3)[0]
         if self_query:
             smallA = smallB
         dims = np.maximum(topA, topB) + 1
