@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from penfree.errors import InputError
-from penfree.sequence import Obstacle, Sequence
+from penfree.sequence import Obstacle, Sequence, first_nonfinite_frame
 
 
 RNG_SEED = 20261121  # seed of the shared `rng` fixture (tests/conftest.py)
@@ -87,6 +87,17 @@ def test_non_finite_frame_is_named(rng, frame):
     pos[frame, 1, 2] = np.nan
     with pytest.raises(InputError, match=f"frame {frame} holds NaN or Inf in s.h5:/positions"):
         _seq(rng, positions=pos).validate()
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("bad", [[], [0], [4], [1, 3], [0, 1, 2, 3, 4]])
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_first_nonfinite_frame_matches_whole_array_mask(rng, dtype, bad, value):
+    pos = rng.random((5, 7, 3)).astype(dtype)
+    for s in bad:
+        pos[s, rng.integers(7), rng.integers(3)] = value
+    oracle = np.flatnonzero(~np.isfinite(pos).all(axis=(1, 2)))
+    assert first_nonfinite_frame(pos) == (int(oracle[0]) if oracle.size else None)
 
 
 def test_obstacle_frame_static_and_moving(rng):
