@@ -189,6 +189,12 @@ main()
 """
 
 
+def _default_sigint():
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.fixture
 def cli_process(tmp_path):
     """``cli_process(*args, during_write=None, before_read=None, expect=None)``: penfree in a subprocess.
@@ -207,8 +213,11 @@ def cli_process(tmp_path):
         outs = inferred_outputs(args) if outputs is None else [os.fspath(o) for o in outputs]
         spec = json.dumps({"args": args, "during_write": during_write, "before_read": before_read})
         before = snapshot(folder_)
+        # The child starts with SIGINT at its default, as under a terminal: pytest run as a
+        # background job of a non-interactive shell ignores SIGINT, the child would inherit
+        # that and no SIGINT test could see penfree's own handling.
         p = subprocess.run([sys.executable, "-c", HOOKED_MAIN, spec], capture_output=True, text=True,
-                           cwd=folder_, timeout=600)
+                           cwd=folder_, timeout=600, preexec_fn=_default_sigint)
         after = snapshot(folder_)
         changed = diff(before, after)
         check_contract(f"penfree {' '.join(args)} (subprocess)", p.returncode, p.stdout, p.stderr, changed, after,
