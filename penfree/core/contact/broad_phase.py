@@ -3,7 +3,10 @@ overlap, found with a uniform grid (dense or hashed) in Numba.
 
 Design. The boxes of the "grid" set B are entered into a uniform grid of cubic
 cells, twice the median box extent along the axis where that median is largest,
-doubled while a few huge boxes would cost too much. The cell table is dense while
+doubled while a few huge boxes would cost too much; a min fold may instead take
+per-axis sizes, twice the median extent along each axis, where a sampled scan cost
+says they pay (`choose_cells`: a dense bundle of yarns, whose cubes, sized by the
+long axis, hold many strands each). The cell table is dense while
 it has at most `_DENSE_FACTOR` cells per entry, else hashed (each entry keeps its
 cell key, so collisions cost time, never correctness). Each entry carries a copy of
 its box, so a cell is scanned sequentially. Two layouts:
@@ -112,6 +115,17 @@ _BIG_ROW_CELLS = 512
 _BIG_CELLS = 64
 #: Row scans in blocks of this many entries (the compacted scan's scratch, `_scan`).
 _SCAN_BLOCK = 256
+#: Cell shapes of a plan: cubes at the largest axis's size, or per-axis sizes.
+CELL_SHAPES = ("cube", "axis")
+#: `choose_cells`: a visited cell costs about as much as this many scanned entries, and
+#: per-axis cells are chosen only when their estimated scan costs less than this
+#: fraction of the cubes' (the estimate is a sample; a near tie keeps the cubes).
+_CELL_VISIT_ENTRIES = 2.0
+_AXIS_GAIN = 0.8
+#: Boxes sampled (strided) for the median extents that size the cells: the cell size
+#: sets the speed, never the pairs, and a median of 4K boxes is within ~2% of all of
+#: theirs (a 64K-box median took 0.9 ms per axis, per plan).
+_STAT_SAMPLE = 4096
 #: Cells per axis are capped so that a cell key fits int64 (2^20 ^ 3 = 2^60).
 _MAX_DIM = 1 << 20
 #: Brute-force budget for big boxes, in box tests per box of the scene, before
@@ -709,8 +723,8 @@ def _box_corners(lo, hi):
 
 def _box_stats(lo, hi):
     """``(corners (2, 3), ext)``: the boxes' bounding corners and the extents of a
-    strided sample of <= 32K of them (all that `_median_extents` reads)."""
-    step = max(1, lo.shape[0] // 32768)
+    strided sample of <= `_STAT_SAMPLE` of them (all that `_median_extents` reads)."""
+    step = max(1, -(-lo.shape[0] // _STAT_SAMPLE))
     return _box_corners(lo, hi), hi[::step] - lo[::step]
 
 
@@ -828,7 +842,9 @@ class _Plan:
     lower-corner grid, whose folds scan half the region); either layout answers every
     query, only the speed differs."""
 
-    def __init__(self, loA, hiA, TA, loB, hiB, TB, self_query, inflation=0.0, listing=True):
+    def __init__(self, loA, hiA, TA, loB, hiB, TB, self_query, inflation=0.0, listing=True, cells="cube"):
+        if cells not in CELL_SHAPES:
+            raise ValueError(f"cells must be one of {CELL_SHAPES}; got {cells!r}")
         self.self_query = bool(self_query)
         self.loA, self.hiA, self.TA = loA, hiA, TA
         self.loB, self.hiB, self.TB = loB, hiB, TB
@@ -855,10 +871,13 @@ class _Plan:
         if not np.all(h > 0.0):
             fill = h.max() if h.max() > 0.0 else (span / np.cbrt(nA + nB) if span > 0.0 else 1.0)
             h = np.where(h > 0.0, h, fill)
-        # Cubic cells at the largest axis's size: the per-axis sizes (tiny across a
-        # yarn or a sheet) made sparse grids whose boxes covered many cells; cubes
-        # measured 1.2-2x faster on the 64K rods, cloth and draped-cloth scenes.
-        h = np.full(3, h.max())
+        # Cubic cells at the largest axis's size (the default): the per-axis sizes
+        # (tiny across a yarn or a sheet) made sparse grids whose boxes covered many
+        # cells; cubes measured 1.2-2x faster on the 64K rods, cloth and draped-cloth
+        # scenes. Per-axis cells ("axis") pay where the boxes fill space across the
+        # thin axes, as in a bundle of yarns (`choose_cells` decides from counts).
+        if cells == "cube":
+            h = np.full(3, h.max())
         h = np.maximum(h, spans / (_MAX_DIM - 2))
         budget = _BIG_WORK_PER_BOX * (nA + nB)
         covering = self.self_query and listing
@@ -1112,7 +1131,43 @@ def pair_rows(TA, TB, P):
     return out
 
 
-def fold_min_sq(x, TA, TB, inflation, partial, self_query):
+def scan_cost(plan) -> float:
+    """Estimated row-scan work of a plan per row: entries scanned plus
+    `_CELL_VISIT_ENTRIES` per cell visited, over a strided sample of <= `_SAMPLE_ROWS`
+    rows (`_hit_rate`'s scan regions). 0 for an empty plan."""
+    if plan.empty:
+        return 0.0
+    nA = plan.loA.shape[0]
+    rows = np.arange(0, nA, max(1, nA // _SAMPLE_ROWS), dtype=np.int64)
+    scanned, _ = _hit_rate(rows, plan.self_query, plan.loA, plan.hiA, plan.cloA, plan.chiA, plan.smallA,
+                           plan.dims, plan.bits, plan.reach, plan.boff, plan.ent_id, plan.ent_box)
+    small = rows[plan.smallA[rows]]
+    lo = np.maximum(plan.cloA[small] - plan.reach, 0)
+    hi = np.minimum(plan.chiA[small], plan.dims - 1)
+    cells = float(np.prod(hi - lo + 1, axis=1).sum())
+    return (scanned + _CELL_VISIT_ENTRIES * cells) / rows.size
+
+
+def choose_cells(x, TA, TB, inflation, self_query) -> str:
+    """The cell shape (`CELL_SHAPES`) under which the min fold of these primitives at
+    `inflation` is estimated to scan less (`scan_cost` of both plans, built once each):
+    "axis" only when it costs under `_AXIS_GAIN` of the cubes'.
+
+    The shape changes which cells the rows scan, never the pairs they find, so a
+    fold's result is the same bits under either; callers that run the same scene's
+    query again and again (`proximity.SeparationQuery`) choose once and pass it on.
+    Measured (issue 13, 64K yarn bundle at its separations' reach): cubes scan ~400
+    entries per row for 9 overlaps, per-axis cells ~130, and the separation query
+    runs 1.25-1.5x faster; on the 64K cloth the counts are equal and cubes stay.
+    """
+    loA, hiA = _box_arrays(x, x, TA, inflation)
+    loB, hiB = (loA, hiA) if self_query else _box_arrays(x, x, TB, inflation)
+    cost = {c: scan_cost(_Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation, listing=False, cells=c))
+            for c in CELL_SHAPES}
+    return "axis" if cost["axis"] < _AXIS_GAIN * cost["cube"] else "cube"
+
+
+def fold_min_sq(x, TA, TB, inflation, partial, self_query, cells="cube"):
     """Fold the squared distances of near pairs into per-vertex minima (static scene).
 
     Parameters
@@ -1125,6 +1180,8 @@ def fold_min_sq(x, TA, TB, inflation, partial, self_query):
     partial : (C, N) float64
         Row c receives chunk c's minima; reduce with ``min`` afterwards.
     self_query : bool
+    cells : str
+        Cell shape of the grid (`CELL_SHAPES`, `choose_cells`): the time, never the result.
 
     Notes
     -----
@@ -1132,7 +1189,7 @@ def fold_min_sq(x, TA, TB, inflation, partial, self_query):
     """
     loA, hiA = _box_arrays(x, x, TA, inflation)
     loB, hiB = (loA, hiA) if self_query else _box_arrays(x, x, TB, inflation)
-    _Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation, listing=False).min_sq_into(x, partial)
+    _Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation, listing=False, cells=cells).min_sq_into(x, partial)
 
 
 def min_pair_sq(x, TA, TB, inflation, self_query) -> float:

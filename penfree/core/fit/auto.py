@@ -31,7 +31,7 @@ from ...errors import InputError
 from . import models as _fit
 from .certificate import certified_margin, certify_map, fast_margin_bound
 from .projection import project
-from .auto_kernels import predict_kernel
+from .auto_kernels import predict_kernel, upper_quantile
 from .step import StepResult
 
 _I3 = np.eye(3)
@@ -154,7 +154,7 @@ def predict_map_passes(x_prev, x, D, u, c, d_start, sigma, r_q, thickness=0.0, g
     r_q, thickness, gamma : float
     r_buf : (N,) float64 or None
         Scratch for the per-vertex ratios, reused across candidates; on return it
-        holds them partitioned about the 99th percentile (blocked vertices as -inf).
+        holds them (blocked vertices as -inf), in some order.
 
     Returns
     -------
@@ -166,7 +166,7 @@ def predict_map_passes(x_prev, x, D, u, c, d_start, sigma, r_q, thickness=0.0, g
     One fused pass (`selection_kernels.predict_kernel`) forms x_def in float64,
     rounds it to x's dtype (the stored x_def), and divides its distance to x_pred by
     ``predicted_bounds(d_start, sigma, r_q, thickness, gamma)``; the 99th percentile
-    ("higher") is then one `numpy.partition` of the ratios. Compared
+    ("higher") is then `upper_quantile` of the ratios (what `numpy.partition` gives). Compared
     with ``predict_passes(apply_map(x, D, u, c)[0], x_pred, predicted_bounds(...))``
     the only difference is the rounding of x_def: `apply_map` may fuse and reorder
     its multiply-adds, so x_def can differ in its last bit (tests/core/fit/test_auto.py).
@@ -212,9 +212,7 @@ def _predict(x_prev, x, D, u, c, d_start, sigma, r_q, thickness, gamma, r):
     def quantile():
         # Blocked vertices hold -inf, below every kept ratio: shift the index past them.
         n_keep = n - n_blocked
-        rank = n_blocked + -((-K.K_PERCENTILE * (n_keep - 1)) // 100)
-        r.partition(rank)  # in place: r is scratch
-        return float(r[rank]), float(r[rank:].max())
+        return upper_quantile(r, n_blocked + -((-K.K_PERCENTILE * (n_keep - 1)) // 100))
 
     return _summary(hits, n_blocked, n, quantile)
 

@@ -104,3 +104,71 @@ def predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r, unb
         x_prev.reshape(-1), x.reshape(-1), D, u, c, d_start, s, r_q, thickness, gamma, out32,
         bool(unbounded), r, K.REDUCTION_CHUNKS)
     return int(res[0]), int(res[1])
+
+
+#: `upper_quantile` picks its threshold from a strided sample of at most this many ratios.
+_SELECT_SAMPLE = 4096
+#: ... at the sample entry with this many times the expected share of entries above it
+#: (plus `_SELECT_PAD`), so that the entries at or above it hold the answer (else numpy).
+_SELECT_SLACK = 2
+_SELECT_PAD = 16
+
+
+@njit(cache=True)
+def _upper_select(r, rank):
+    # The value at sorted position `rank` is the k-th largest (k = n - rank), and the
+    # largest of the entries from `rank` on is the overall maximum. Only the entries at
+    # or above a threshold t taken from a sample are partitioned: when at least k of
+    # them are, the k-th largest is among them. NaN (numpy sorts it last) or a
+    # threshold that leaves fewer than k entries: ok = False, the caller partitions.
+    n = r.shape[0]
+    k = n - rank
+    step = max(1, n // _SELECT_SAMPLE)
+    m = (n + step - 1) // step
+    sample = np.empty(m)
+    for j in range(m):
+        sample[j] = r[j * step]
+    ks = min(m, _SELECT_SLACK * (k * m) // n + _SELECT_PAD)
+    t = np.partition(sample, m - ks)[m - ks]
+    if t != t:
+        return 0.0, 0.0, False
+    cap = min(n, _SELECT_SLACK * ks * step + _SELECT_PAD)
+    buf = np.empty(cap)
+    count = 0
+    top = -np.inf
+    for i in range(n):
+        v = r[i]
+        if v != v:
+            return 0.0, 0.0, False
+        top = v if v > top else top
+        if v >= t:
+            if count < cap:
+                buf[count] = v
+            count += 1
+    if count < k or count > cap:
+        return 0.0, 0.0, False
+    return np.partition(buf[:count], count - k)[count - k], top, True
+
+
+def upper_quantile(r, rank):
+    """``(sorted(r)[rank], max(r[rank:]))`` for a high `rank`, as ``r.partition(rank)``
+    gives them (the same floats), without partitioning all of `r`.
+
+    Parameters
+    ----------
+    r : (N,) float64, C-contiguous
+        Left unchanged, except where the fallback partitions it in place (scratch).
+    rank : int, 0 <= rank < N
+
+    Notes
+    -----
+    The 99th percentile of `predict_kernel`'s ratios, ~10 per step: ``numpy.partition``
+    of 64K ratios took 0.45-0.9 ms each, the thresholded selection ~0.1 ms. Exact: the
+    k-th largest entry is the k-th largest of the entries at or above any threshold
+    that at least k of them reach; otherwise (or with NaN) numpy decides.
+    """
+    q, top, ok = _upper_select(r, rank)
+    if not ok:
+        r.partition(rank)
+        return float(r[rank]), float(r[rank:].max())
+    return float(q), float(top)

@@ -190,3 +190,118 @@ def test_reach_must_be_finite_and_non_negative(reach):
     E = np.array([[0, 1], [2, 3]], dtype=np.int64)
     with pytest.raises(InputError, match="reach must be finite"):
         per_vertex_separation(x, E, np.zeros((0, 3), dtype=np.int64), 1.0, reach=reach)
+
+
+def _yarn(rng, side=12, n=40, spacing=0.004):
+    # A dense bundle: side x side parallel wavy strands whose segments (1/39 long) are
+    # several spacings long, like the 64K yarn bundle (boxes fill space across the
+    # strands, so per-axis cells scan fewer entries than cubes).
+    t = np.linspace(0.0, 1.0, n)
+    V, E = [], []
+    for k in range(side * side):
+        c = np.array([spacing * (k % side), spacing * (k // side), 0.0])
+        P = np.stack([0.001 * np.sin(9 * t + k), 0.001 * np.cos(7 * t + k), t], 1) + c
+        E.append(np.stack([np.arange(n - 1), np.arange(1, n)], 1) + k * n)
+        V.append(P + rng.normal(scale=1e-5, size=P.shape))
+    return np.ascontiguousarray(np.concatenate(V)), np.concatenate(E).astype(np.int64)
+
+
+def _cell_scenes(rng):
+    scenes = dict(_scenes(rng, 0.0))
+    scenes.update({f"{k}-far": v for k, v in _scenes(rng, 3e2).items()})
+    none = np.zeros((0, 3), dtype=np.int64)
+    scenes["yarn"] = (*_yarn(rng, side=5, n=20), none)
+    # exactly planar (zero extent along z) and collinear (zero extent along y and z)
+    u = np.linspace(0.0, 1.0, 9)
+    X, Y = np.meshgrid(u, u, indexing="ij")
+    Vp = np.ascontiguousarray(np.stack([X, Y, 0 * X], -1).reshape(-1, 3))
+    idx = np.arange(81).reshape(9, 9)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    Fp = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]).astype(np.int64)
+    scenes["planar"] = (Vp, edges_from_faces(Fp), Fp)
+    Vl = np.ascontiguousarray(np.stack([np.linspace(0.0, 1.0, 30), np.zeros(30), np.zeros(30)], 1))
+    scenes["collinear"] = (Vl, np.stack([np.arange(29), np.arange(1, 30)], 1).astype(np.int64), none)
+    return scenes
+
+
+@pytest.mark.parametrize("radius", [0.0, 0.01, 0.05, 0.3])
+def test_cell_shapes_give_the_same_bits(rng, monkeypatch, radius):
+    # The cell shape changes which cells a row scans, never the pairs it finds: every
+    # combination of the two folds' shapes gives the unpruned fold's bits.
+    for name, (V, E, F) in _cell_scenes(rng).items():
+        want = _unpruned(V, E, F, radius, monkeypatch)
+        for cells in [(a, b) for a in bp.CELL_SHAPES for b in bp.CELL_SHAPES]:
+            got = per_vertex_separation(V, E, F, radius, cells=cells)
+            np.testing.assert_array_equal(got.view(np.uint64), want.view(np.uint64), err_msg=f"{name} {cells}")
+            top = want[want < radius]
+            if top.size:  # at a reach, completed at the radius
+                got = per_vertex_separation(V, E, F, radius, reach=0.8 * top.max(), cells=cells)
+                np.testing.assert_array_equal(got.view(np.uint64), want.view(np.uint64), err_msg=f"{name} {cells}")
+
+
+def test_cell_shapes_match_exact_brute_force(rng):
+    from fractions import Fraction
+
+    V, E = _yarn(rng, side=3, n=12, spacing=0.03)
+    radius = 0.05
+    X = [[Fraction(float(c)) for c in row] for row in V]
+    best = np.full(len(V), radius ** 2)
+    for i in range(len(E)):
+        for j in range(i + 1, len(E)):
+            if not set(E[i]) & set(E[j]):
+                d = float(ee_sq(*(X[v] for v in E[i]), *(X[v] for v in E[j])))
+                for v in (*E[i], *E[j]):
+                    best[v] = min(best[v], d)
+    want = np.minimum(np.sqrt(best), radius)
+    for cells in bp.CELL_SHAPES:
+        got = per_vertex_separation(V, E, np.zeros((0, 3), dtype=np.int64), radius, cells=(cells, "cube"))
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15)
+
+
+def test_per_axis_cells_are_chosen_where_they_scan_less(rng):
+    # A dense bundle at its separations' reach: cubes sized by the long axis hold many
+    # strands per cell, per-axis cells a few; a sheet's thin axis gains nothing.
+    V, E = _yarn(rng)
+    none = np.zeros((0, 3), dtype=np.int64)
+    d = per_vertex_separation(V, E, none, 0.05)
+    infl = 0.5 * 1.1 * d.max()
+    lo, hi = bp._box_arrays(V, V, E, infl)
+    cost = {c: bp.scan_cost(bp._Plan(lo, hi, E, lo, hi, E, True, infl, listing=False, cells=c))
+            for c in bp.CELL_SHAPES}
+    assert cost["axis"] < 0.6 * cost["cube"], cost
+    assert bp.choose_cells(V, E, E, infl, True) == "axis"
+    assert proximity.separation_cells(V, E, none, 2 * infl) == ("axis", "cube")
+    Vs, Fs = _sheet(30, rng)
+    Es = edges_from_faces(Fs)
+    assert proximity.separation_cells(Vs, Es, Fs, 0.02) == ("cube", "cube")
+
+
+def test_separation_query_chooses_cells_once_per_octave(rng, monkeypatch):
+    V, E = _yarn(rng, side=6, n=20)
+    none = np.zeros((0, 3), dtype=np.int64)
+    calls = []
+    real = proximity.separation_cells
+
+    def spy(x, E_, F_, rho):
+        calls.append(rho)
+        return real(x, E_, F_, rho)
+
+    monkeypatch.setattr(proximity, "separation_cells", spy)
+    q = proximity.SeparationQuery(E, none)
+    for s, radius in enumerate([0.05, 0.05, 0.06, 0.05, 0.3]):
+        x = np.ascontiguousarray(V + 1e-4 * s)
+        np.testing.assert_array_equal(q(x, radius), per_vertex_separation(x, E, none, radius))
+        assert q.info["cells"] in [(a, "cube") for a in bp.CELL_SHAPES]
+    # The first query runs at its radius, the others (translations: the same reach) at
+    # the reach, another octave; the larger radius of the last changes no reach.
+    assert q.info["reached"] == 4
+    assert len(calls) == 2, calls
+    assert len({np.frexp(r)[1] for r in calls}) == 2
+
+
+def test_plan_rejects_an_unknown_cell_shape():
+    lo = np.zeros((2, 3))
+    hi = np.ones((2, 3))
+    T = np.array([[0, 1], [2, 3]], dtype=np.int64)
+    with pytest.raises(ValueError, match="cells must be one of"):
+        bp._Plan(lo, hi, T, lo, hi, T, True, 0.0, listing=False, cells="sphere")
