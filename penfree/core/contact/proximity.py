@@ -185,13 +185,15 @@ def _separations(x, E, F, radius, cells=("cube", "cube")):
     if E.shape[0]:
         fold_min_sq(x, E, E, inflation, partial, self_query=True, cells=cells[0])
     if F.shape[0]:
-        fold_min_sq(x, _face_vertices(n, E, F), F, inflation, partial, self_query=False, cells=cells[1])
+        Q = _face_vertices(referenced_vertices(n, F, E))
+        fold_min_sq(x, Q, F, inflation, partial, self_query=False, cells=cells[1])
     return capped_separations(partial, radius)
 
 
-def _face_vertices(n, E, F):
-    """(V, 1) int64: the vertices in a primitive, the rows of the vertex-face fold."""
-    return np.ascontiguousarray(np.flatnonzero(referenced_vertices(n, F, E)).astype(np.int64)[:, None])
+def _face_vertices(used):
+    """(V, 1) int64: the vertices of mask `used` (those in a primitive), the rows of the
+    vertex-face folds."""
+    return np.ascontiguousarray(np.flatnonzero(used).astype(np.int64)[:, None])
 
 
 def separation_cells(x, E, F, radius) -> tuple:
@@ -199,7 +201,9 @@ def separation_cells(x, E, F, radius) -> tuple:
     (`broad_phase.choose_cells` of each fold at the query's inflation)."""
     inflation = 0.5 * float(radius)
     ee = choose_cells(x, E, E, inflation, True) if E.shape[0] else "cube"
-    vf = choose_cells(x, _face_vertices(x.shape[0], E, F), F, inflation, False) if F.shape[0] else "cube"
+    vf = "cube"
+    if F.shape[0]:
+        vf = choose_cells(x, _face_vertices(referenced_vertices(x.shape[0], F, E)), F, inflation, False)
     return ee, vf
 
 
@@ -228,7 +232,7 @@ def _complete(x, E, F, radius, C, used):
             loB, hiB, EB = loE[k], hiE[k], E[k]
             fold(*near(loE, hiE, E, loB, hiB), loB, hiB, EB)
     if F.shape[0]:
-        Q = np.flatnonzero(used).astype(np.int64)[:, None]
+        Q = _face_vertices(used)
         loQ, hiQ = _box_arrays(x, x, Q, infl)
         loF, hiF = _box_arrays(x, x, F, infl)
         k = np.flatnonzero(C[Q[:, 0]])
@@ -294,7 +298,8 @@ class SeparationQuery:
         x = np.ascontiguousarray(x, dtype=np.float64)
         r = _checked(radius, "radius")
         reach = self.reach if self.reach is not None and self.reach < r else None
-        d = per_vertex_separation(x, self.E, self.F, r, reach=reach, cells=self._cells(x, r if reach is None else reach))
+        cells = self._cells(x, r if reach is None else reach)
+        d = per_vertex_separation(x, self.E, self.F, r, reach=reach, cells=cells)
         self.info["queries"] += 1
         if reach is not None:
             self.info["reached"] += 1
