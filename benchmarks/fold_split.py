@@ -44,8 +44,11 @@ def _ms(fn):
 def run(path, n_states, rounds):
     seq = read_sequence(path)
     _, E, F = scene_arrays(seq.positions[0], seq.edges, seq.faces)
-    s0 = max(1, seq.n_frames // 2 - n_states)
-    X = [np.ascontiguousarray(seq.positions[s], np.float64) for s in range(s0 - 2, s0 + n_states)]
+    # two warm-up states, then n_states from the middle of the recording
+    s0 = max(0, min(seq.n_frames // 2 - n_states - 2, seq.n_frames - n_states - 2))
+    X = [np.ascontiguousarray(seq.positions[s], np.float64) for s in range(s0, min(seq.n_frames, s0 + n_states + 2))]
+    if len(X) < 4:
+        raise SystemExit(f"{path}: needs at least 4 frames; has {seq.n_frames}")
     q = SeparationQuery(E, F)
     q(X[0], 1.0)
     q(X[1], 1.0)  # the reach of a run in progress
@@ -75,13 +78,12 @@ def run(path, n_states, rounds):
         counts.append(f"skin {rel:g} reach: {nl.info['n_pairs']:,}")
     print("  pairs listed: " + ", ".join(counts))
     disp = [max_displacement(X[k], X[k + 1]) for k in range(len(X) - 1)]
-    fits = [affine_residual(X[k], X[k + 1]) for k in range(len(X) - 1)]
-    # a list built at frame s answers frame s + 1 at the reach if built at this radius
-    need = [(rho + 2.0 * eps) / s_min / rho for s_min, eps in filter(None, fits)]
-    res = [eps for _, eps in filter(None, fits)]
+    res = [fit[1] for fit in (affine_residual(X[k], X[k + 1]) for k in range(len(X) - 1)) if fit is not None]
+    # the radius at frame s that holds every pair within the reach at s + 1 (the list's own rule)
+    need = [nl.reach(X[k + 1], rho, X[k]) / rho for k in range(len(X) - 1)]
     print(f"  motion per step: largest displacement {min(disp):.3g}-{max(disp):.3g}, "
           f"after the affine fit {min(res, default=np.nan):.3g}-{max(res, default=np.nan):.3g}: a list "
-          f"lasting one step needs a build radius of {max(need, default=np.nan):.2f}x the reach "
+          f"lasting one step needs a build radius of {max(need):.2f}x the reach "
           f"(raw motion: {(rho + 2.0 * max(disp)) / rho:.2f}x)")
 
 
