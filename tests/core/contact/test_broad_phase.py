@@ -378,12 +378,49 @@ def test_each_pair_found_once_from_lower_corner_cells(rng, offset):
         assert bp.min_pair_sq(VV, EE, EE, 0.01, True) == want
 
 
+@pytest.mark.parametrize("kind", ["rods", "cloth", "folded-cloth", "far-from-origin", "touching"])
+@pytest.mark.parametrize("inflation", [0.0, 0.004, 0.03])
+def test_min_fold_cells_split_along_the_runs(rng, kind, inflation, monkeypatch):
+    # The min folds' plans (listing=False) cut each cell along x, the runs of a dense
+    # table, into `_RUN_SPLIT` (rows scan more layers along x), and keep whole cells on a
+    # hashed table. Either way the per-vertex minima are those of the brute-force
+    # oracle's pairs bit for bit, and the listed pairs are the oracle's.
+    V, E, F = _scene(kind, rng)
+    Q = np.arange(len(V), dtype=np.int64)[:, None]
+    sets = [(E, E, True, edge_edge_candidates_brute(V, V, E, inflation))]
+    if len(F):
+        sets.append((Q, F, False, vertex_face_candidates_brute(V, V, F, inflation)))
+    assert bp._RUN_SPLIT > 1
+    dense = []
+    for TA, TB, sq, pairs in sets:
+        want = np.full(len(V), np.inf)
+        for i, j in pairs:
+            d2 = bp._pair_sq(V, TA, i, TB, j)
+            k = np.concatenate([TA[i], TB[j]])
+            want[k] = np.minimum(want[k], d2)
+        lo_a, hi_a = bp._box_arrays(V, V, TA, inflation)
+        lo_b, hi_b = (lo_a, hi_a) if sq else bp._box_arrays(V, V, TB, inflation)
+        for split in (bp._RUN_SPLIT, 1):
+            monkeypatch.setattr(bp, "_RUN_SPLIT", split)
+            plan = bp._Plan(lo_a, hi_a, TA, lo_b, hi_b, TB, sq, inflation, listing=False)
+            if split > 1:  # cubes cut along x on a dense table, whole on a hashed one
+                dense.append(plan.bits < 0)
+                assert (plan.h[0] < plan.h[1]) == (plan.bits < 0) and plan.h[1] == plan.h[2]
+            part = np.full((3, len(V)), np.inf)
+            plan.min_sq_into(V, part)
+            np.testing.assert_array_equal(part.min(axis=0).view(np.uint64), want.view(np.uint64))
+            np.testing.assert_array_equal(plan.pairs(), pairs)
+    assert all(dense) or kind == "rods"  # the sheets' tables are dense: the split is exercised
+
+
 @pytest.mark.parametrize("long_share", [4, 400], ids=["many-long", "few-long"])
-def test_reach_covers_boxes_spanning_several_cells(long_share):
+def test_reach_covers_boxes_spanning_several_cells(long_share, monkeypatch):
     # Segments of two lengths: with a long one in every 4, too many to brute-force, the
     # rows scan two cell layers below their own (reach 2); with one in 400 they stay out
     # of the grid (reach 1). Every pair is found once either way, for the listed pairs
-    # (rows i < j), the vertex-face pairs and the folds.
+    # (rows i < j), the vertex-face pairs and the folds. (Whole cells: the split along
+    # x has its own test above.)
+    monkeypatch.setattr(bp, "_RUN_SPLIT", 1)
     rng = np.random.default_rng(5)
     n = 3000
     P = rng.uniform(0, 1, size=(n, 3))
