@@ -16,8 +16,9 @@ its box, so a cell is scanned sequentially. Two layouts:
   and `reach` layers below them, the largest span (in cells beyond the first) of the
   grid's boxes along each axis, so each partner is found once. On a dense table a
   row of cells along x is one run of entries, so the min folds' plans cut their cells
-  along x into `_RUN_SPLIT` (fewer entries per run, no more runs). In the min folds of a self query a
-  row scans only the cells from its own on in key order: each pair is folded from
+  along x into `_RUN_SPLIT` (fewer entries per run, no more runs). In the min folds
+  of a self query a row scans only the cells from its own on in key order: each pair
+  is folded from
   the row whose lower corner's cell comes first. Boxes spanning more than
   `_MAX_REACH` cells (or one, when few do) stay out of the grid.
 - Covering (listed self queries, `_Plan(listing=True)`): each box is entered in every
@@ -92,6 +93,7 @@ brute-force oracles live in ``tests/oracles.py``.
 from __future__ import annotations
 
 import copy
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -849,6 +851,23 @@ def _pairs_pass(args, n, mode=MODE_FILL, V=None):
     return P
 
 
+class _Cells(NamedTuple):
+    """A plan's grid cells (`_Plan._sized`): sizes, the cell ranges and small-box masks
+    of both sets, the reach, the table's dims, and its hash bits (-1: dense) and buckets."""
+
+    h: np.ndarray
+    cloA: np.ndarray
+    chiA: np.ndarray
+    smallA: np.ndarray
+    cloB: np.ndarray
+    chiB: np.ndarray
+    smallB: np.ndarray
+    reach: np.ndarray
+    dims: np.ndarray
+    bits: int
+    nb: int
+
+
 class _Plan:
     """Boxes of both sets on one grid; see the module docstring. `listing` (self queries
     only): the plan lists pairs (a covering grid) rather than folds minima (a
@@ -891,30 +910,27 @@ class _Plan:
         # thin axes, as in a bundle of yarns (`choose_cells` decides from counts).
         if cells == "cube":
             h = np.full(3, h.max())
-        h = np.maximum(h, spans / (_MAX_DIM - 2))
         covering = self.self_query and listing
-        sized = None
+        g = None
         if not listing and _RUN_SPLIT > 1:  # the min folds: finer cells along the runs
-            h_split = np.maximum(h / np.array([_RUN_SPLIT, 1.0, 1.0]), spans / (_MAX_DIM - 2))
-            sized = self._sized(loA, hiA, loB, hiB, origin, h_split, spans, covering, _SPLIT_MAX_REACH,
-                                _SPLIT_BIG_SHARE)
-            if sized[-2] >= 0:  # hashed: cells visited one by one, the split would not pay
-                sized = None
-        if sized is None:
-            sized = self._sized(loA, hiA, loB, hiB, origin, h, spans, covering, _MAX_REACH, 1.0)
-        h, cloA, chiA, smallA, cloB, chiB, smallB, reach, dims, bits, nb = sized
+            g = self._sized(loA, hiA, loB, hiB, origin, h / np.array([_RUN_SPLIT, 1.0, 1.0]), spans, covering,
+                            _SPLIT_MAX_REACH, _SPLIT_BIG_SHARE)
+            if g.bits >= 0:  # hashed: cells visited one by one, the split would not pay
+                g = None
+        if g is None:
+            g = self._sized(loA, hiA, loB, hiB, origin, h, spans, covering, _MAX_REACH, 1.0)
         self.boff, self.ent_key, self.ent_id, self.ent_box, self.ent_clo = _build_grid(
-            cloB, chiB, smallB, covering, dims, bits, nb, loB, hiB)
-        self.origin, self.h, self.dims, self.bits, self.reach = origin, h, dims, bits, reach
-        self._set_rows(loA, hiA, TA, cloA, chiA, smallA)
-        self.bigB = np.ascontiguousarray(np.flatnonzero(~smallB).astype(np.int64))
+            g.cloB, g.chiB, g.smallB, covering, g.dims, g.bits, g.nb, loB, hiB)
+        self.origin, self.h, self.dims, self.bits, self.reach = origin, g.h, g.dims, g.bits, g.reach
+        self._set_rows(loA, hiA, TA, g.cloA, g.chiA, g.smallA)
+        self.bigB = np.ascontiguousarray(np.flatnonzero(~g.smallB).astype(np.int64))
 
     def _sized(self, loA, hiA, loB, hiB, origin, h, spans, covering, max_reach, big_share):
-        """The grid's cells from the sizes `h`, doubled while the boxes kept out of the
-        grid would cost more than the brute-force budget: ``(h, cloA, chiA, smallA, cloB,
-        chiB, smallB, reach, dims, bits, nb)``, bits -1 for a dense table. Rows scan up to
-        `max_reach` cell layers below their own; the fewest that leave big boxes within
-        `big_share` of the budget are taken."""
+        """The grid's cells (`_Cells`) from the sizes `h` (at least the span over
+        `_MAX_DIM` cells), doubled while the boxes kept out of the grid would cost more
+        than the brute-force budget. Rows scan up to `max_reach` cell layers below their
+        own; the fewest that leave big boxes within `big_share` of the budget are taken."""
+        h = np.maximum(h, spans / (_MAX_DIM - 2))
         nA, nB = loA.shape[0], loB.shape[0]
         budget = _BIG_WORK_PER_BOX * (nA + nB)
         while True:
@@ -946,7 +962,7 @@ class _Plan:
         else:
             bits = max(1, int(np.ceil(np.log2(max(2 * entries, 2)))))
             nb = 1 << bits
-        return h, cloA, chiA, smallA, cloB, chiB, smallB, reach, dims, bits, nb
+        return _Cells(h, cloA, chiA, smallA, cloB, chiB, smallB, reach, dims, bits, nb)
 
     def _set_rows(self, loA, hiA, TA, cloA, chiA, smallA):
         self.loA, self.hiA, self.TA = loA, hiA, TA
