@@ -18,9 +18,8 @@ its box, so a cell is scanned sequentially. Two layouts:
   row of cells along x is one run of entries, so the min folds' plans cut their cells
   along x into `_RUN_SPLIT` (fewer entries per run, no more runs). In the min folds
   of a self query a row scans only the cells from its own on in key order: each pair
-  is folded from
-  the row whose lower corner's cell comes first. Boxes spanning more than
-  `_MAX_REACH` cells (or one, when few do) stay out of the grid.
+  is folded from the row whose lower corner's cell comes first. Boxes spanning more
+  than `_MAX_REACH` cells (or one, when few do) stay out of the grid.
 - Covering (listed self queries, `_Plan(listing=True)`): each box is entered in every
   cell it covers, each row visits its own cells from its first id above its own, and
   a pair that overlaps in several cells is emitted only from the cell holding the
@@ -1182,8 +1181,9 @@ def pair_rows(TA, TB, P):
 def scan_cost(plan) -> float:
     """Estimated row-scan work of a plan per row: entries scanned plus
     `_CELL_VISIT_ENTRIES` per cell visited, over a strided sample of <= `_SAMPLE_ROWS`
-    rows (`_hit_rate`'s scan regions); on a dense table a row's cells along x are one run
-    of entries, so each run counts as one visit. 0 for an empty plan."""
+    rows (`_hit_rate`'s scan regions); on a dense lower-corner table a row's cells along x
+    are one run of entries (`_visit_row`), so each run counts as one visit. 0 for an
+    empty plan."""
     if plan.empty:
         return 0.0
     nA = plan.loA.shape[0]
@@ -1193,7 +1193,7 @@ def scan_cost(plan) -> float:
     small = rows[plan.smallA[rows]]
     lo = np.maximum(plan.cloA[small] - plan.reach, 0)
     hi = np.minimum(plan.chiA[small], plan.dims - 1)
-    first = 1 if plan.bits < 0 else 0  # dense: runs along x
+    first = 1 if plan.bits < 0 and not plan.ent_clo.shape[0] else 0  # runs along x, as `_visit_row` scans
     cells = float(np.prod(hi[:, first:] - lo[:, first:] + 1, axis=1).sum())
     return (scanned + _CELL_VISIT_ENTRIES * cells) / rows.size
 
