@@ -15,6 +15,15 @@ holds at larger skins and the motion per step, raw and after the step's affine f
 (`neighbours.affine_residual`): a list built at one state answers the next only when
 its skin is at least twice that motion.
 
+Last, the one list design that a shell of pairs just beyond the reach does not defeat:
+per-vertex windows, the pairs within each of their vertices' own separation plus ``2 S``
+(every vertex's nearest pair at the next state is among them when no pair's distance
+moved by more than ``S``). What moves a pair's distance is the relative motion of its
+vertices, and it prints the largest over vertex pairs within ``r + 2 l`` (r the reach,
+l the longest edge: every vertex pair of two primitives within r) against a bound that
+can be computed without a neighbour query: the diameter of the displacements' boxes of
+two neighbouring cells of side ``r + 2 l`` (1, 2 and 3 steps from the first state).
+
     .venv/bin/python benchmarks/fold_split.py /tmp/big/cloth.h5 /tmp/big/yarn.h5 [--states 4] [--rounds 4]
 
 (``samples/generate.py cloth-ref|yarn-bundle --frames 100 -o ...`` makes the 64K files.)
@@ -26,6 +35,7 @@ import argparse
 import time
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from penfree.core.contact.neighbours import NeighbourList, affine_residual, max_displacement
 from penfree.core.contact.proximity import SeparationQuery, per_vertex_separation
@@ -85,6 +95,65 @@ def run(path, n_states, rounds):
           f"after the affine fit {min(res, default=np.nan):.3g}-{max(res, default=np.nan):.3g}: a list "
           f"lasting one step needs a build radius of {max(need):.2f}x the reach "
           f"(raw motion: {(rho + 2.0 * max(disp)) / rho:.2f}x)")
+    windows(path, E, F, X, rho)
+
+
+def _window_pairs(x, E, F, rho, d, S):
+    """Pairs (ee, vf) within the larger of their vertices' separations `d` plus ``2 S``."""
+    nl = NeighbourList(E, F, skin=0.0)
+    nl.ensure(x, float(d.max()) + 2.0 * S, need_list=True)
+    d_ee, d_vf = (np.sqrt(a) for a in nl.pair_sq(x))
+    P, V = nl.P_ee, nl.P_vf
+    w_ee = np.max(d[E[P].reshape(-1, 4)], axis=1) if P.size else np.zeros(0)
+    w_vf = np.maximum(d[V[:, 0]], np.max(d[F[V[:, 1]]], axis=1)) if V.size else np.zeros(0)
+    return int(np.sum(d_ee <= w_ee + 2.0 * S)), int(np.sum(d_vf <= w_vf + 2.0 * S))
+
+
+def _cell_bound(x0, x1, L):
+    """Largest diameter of the union of two neighbouring cells' displacement boxes (cells
+    of side L at x0): a bound on |D_i - D_j| for every vertex pair within L at x0."""
+    D = x1 - x0
+    key = np.floor((x0 - x0.min(axis=0)) / L).astype(np.int64)
+    dims = key.max(axis=0) + 1
+    lin = (key[:, 0] * dims[1] + key[:, 1]) * dims[2] + key[:, 2]
+    cells, inv = np.unique(lin, return_inverse=True)
+    lo = np.full((cells.size, 3), np.inf)
+    hi = np.full((cells.size, 3), -np.inf)
+    np.minimum.at(lo, inv, D)
+    np.maximum.at(hi, inv, D)
+    ck = np.stack([cells // (dims[1] * dims[2]), (cells // dims[2]) % dims[1], cells % dims[2]], axis=1)
+    best = 0.0
+    for off in np.ndindex(3, 3, 3):
+        nb = ck + np.asarray(off) - 1
+        ok = np.all((nb >= 0) & (nb < dims), axis=1)
+        nlin = (nb[:, 0] * dims[1] + nb[:, 1]) * dims[2] + nb[:, 2]
+        j = np.minimum(np.searchsorted(cells, nlin), cells.size - 1)
+        i = np.flatnonzero(ok & (cells[j] == nlin))
+        span = np.maximum(hi[i], hi[j[i]]) - np.minimum(lo[i], lo[j[i]])
+        best = max(best, float(np.sqrt((span ** 2).sum(axis=1)).max(initial=0.0)))
+    return best
+
+
+def windows(path, E, F, X, rho):
+    """Per-vertex window lists and the relative motion that decides their life."""
+    x = X[0]
+    d = per_vertex_separation(x, E, F, rho)
+    counts = []
+    for S in (0.0, 0.05 * rho, 0.1 * rho, 0.2 * rho):
+        ee, vf = _window_pairs(x, E, F, rho, d, S)
+        counts.append(f"S {S / rho:g} reach: {ee + vf:,}")
+    print("  per-vertex windows, pairs listed: " + ", ".join(counts))
+    ell = float(np.linalg.norm(x[E[:, 0]] - x[E[:, 1]], axis=1).max())
+    L = rho + 2.0 * ell
+    pairs = cKDTree(x).query_pairs(L, output_type="ndarray")
+    rows = []
+    for k in (1, 2, 3):
+        if k >= len(X):
+            break
+        D = X[k] - x
+        true = float(np.linalg.norm(D[pairs[:, 0]] - D[pairs[:, 1]], axis=1).max(initial=0.0))
+        rows.append(f"{k} step(s) {true / rho:.3f} / {_cell_bound(x, X[k], L) / rho:.3f}")
+    print(f"  relative motion within r + 2 l = {L:.3g}, in reaches, largest / cell bound: " + ", ".join(rows))
 
 
 def main():
