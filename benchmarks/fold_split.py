@@ -95,10 +95,10 @@ def run(path, n_states, rounds):
           f"after the affine fit {min(res, default=np.nan):.3g}-{max(res, default=np.nan):.3g}: a list "
           f"lasting one step needs a build radius of {max(need):.2f}x the reach "
           f"(raw motion: {(rho + 2.0 * max(disp)) / rho:.2f}x)")
-    windows(path, E, F, X, rho)
+    windows(E, F, X, rho)
 
 
-def _window_pairs(x, E, F, rho, d, S):
+def _window_pairs(x, E, F, d, S):
     """Pairs (ee, vf) within the larger of their vertices' separations `d` plus ``2 S``."""
     nl = NeighbourList(E, F, skin=0.0)
     nl.ensure(x, float(d.max()) + 2.0 * S, need_list=True)
@@ -134,13 +134,13 @@ def _cell_bound(x0, x1, L):
     return best
 
 
-def windows(path, E, F, X, rho):
+def windows(E, F, X, rho):
     """Per-vertex window lists and the relative motion that decides their life."""
     x = X[0]
     d = per_vertex_separation(x, E, F, rho)
     counts = []
     for S in (0.0, 0.05 * rho, 0.1 * rho, 0.2 * rho):
-        ee, vf = _window_pairs(x, E, F, rho, d, S)
+        ee, vf = _window_pairs(x, E, F, d, S)
         counts.append(f"S {S / rho:g} reach: {ee + vf:,}")
     print("  per-vertex windows, pairs listed: " + ", ".join(counts))
     ell = float(np.linalg.norm(x[E[:, 0]] - x[E[:, 1]], axis=1).max())
