@@ -98,15 +98,16 @@ def run(path, n_states, rounds):
     windows(E, F, X, rho)
 
 
-def _window_pairs(x, E, F, d, S):
-    """Pairs (ee, vf) within the larger of their vertices' separations `d` plus ``2 S``."""
+def _window_counts(x, E, F, d, skins):
+    """Pairs (ee + vf) within the larger of their vertices' separations `d` plus ``2 S``,
+    for each S of `skins`: one list at the largest window, counted per skin."""
     nl = NeighbourList(E, F, skin=0.0)
-    nl.ensure(x, float(d.max()) + 2.0 * S, need_list=True)
+    nl.ensure(x, float(d.max()) + 2.0 * max(skins), need_list=True)
     d_ee, d_vf = (np.sqrt(a) for a in nl.pair_sq(x))
     P, V = nl.P_ee, nl.P_vf
     w_ee = np.max(d[E[P].reshape(-1, 4)], axis=1) if P.size else np.zeros(0)
     w_vf = np.maximum(d[V[:, 0]], np.max(d[F[V[:, 1]]], axis=1)) if V.size else np.zeros(0)
-    return int(np.sum(d_ee <= w_ee + 2.0 * S)), int(np.sum(d_vf <= w_vf + 2.0 * S))
+    return [int(np.sum(d_ee <= w_ee + 2.0 * S)) + int(np.sum(d_vf <= w_vf + 2.0 * S)) for S in skins]
 
 
 def _cell_bound(x0, x1, L):
@@ -138,10 +139,8 @@ def windows(E, F, X, rho):
     """Per-vertex window lists and the relative motion that decides their life."""
     x = X[0]
     d = per_vertex_separation(x, E, F, rho)
-    counts = []
-    for S in (0.0, 0.05 * rho, 0.1 * rho, 0.2 * rho):
-        ee, vf = _window_pairs(x, E, F, d, S)
-        counts.append(f"S {S / rho:g} reach: {ee + vf:,}")
+    skins = (0.0, 0.05 * rho, 0.1 * rho, 0.2 * rho)
+    counts = [f"S {S / rho:g} reach: {n:,}" for S, n in zip(skins, _window_counts(x, E, F, d, skins))]
     print("  per-vertex windows, pairs listed: " + ", ".join(counts))
     ell = float(np.linalg.norm(x[E[:, 0]] - x[E[:, 1]], axis=1).max())
     L = rho + 2.0 * ell
