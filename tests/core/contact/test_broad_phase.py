@@ -464,6 +464,29 @@ def _grid_oracle(clo, chi, small, dims, bits, covering):
     return b[order], key[order], ids[order]
 
 
+@pytest.mark.parametrize("max_reach", [1, bp._MAX_REACH, bp._SPLIT_MAX_REACH, 7])
+def test_cell_ranges_match_a_numpy_oracle(rng, max_reach):
+    # The cell ranges and their statistics (per-chunk histograms in the kernel) against
+    # numpy: the largest cell per axis; for every r >= 1, the boxes spanning more than r
+    # cells beyond their first along some axis, and the others' largest span per axis.
+    # Boxes of many spans, some far beyond the largest reach, and one far corner.
+    lo = rng.uniform(0.0, 1.0, (3000, 3))
+    hi = lo + rng.uniform(0.0, 1.0, (3000, 3)) ** 4 * rng.choice([0.05, 0.5], (3000, 1))
+    hi[7] = 3.0
+    origin, h = lo.min(axis=0), np.array([0.01, 0.02, 0.013])
+    clo, chi = np.empty(lo.shape, np.int64), np.empty(lo.shape, np.int64)
+    top, reach, n_over = bp._cell_ranges(lo, hi, origin, h, clo, chi, max_reach)
+    np.testing.assert_array_equal(clo, np.floor((lo - origin) / h).astype(np.int64))
+    np.testing.assert_array_equal(chi, np.floor((hi - origin) / h).astype(np.int64))
+    np.testing.assert_array_equal(top, chi.max(axis=0))
+    span = chi - clo
+    assert reach.shape == (max_reach + 1, 3) and n_over.shape == (max_reach + 1,)
+    for r in range(1, max_reach + 1):
+        over = span.max(axis=1) > r
+        assert n_over[r] == np.count_nonzero(over) and 0 < n_over[r] < len(lo)
+        np.testing.assert_array_equal(reach[r], span[~over].max(axis=0))
+
+
 @pytest.mark.parametrize("listing", [True, False], ids=["covering", "lower-corner"])
 @pytest.mark.parametrize("sparse", [False, True], ids=["dense", "hashed"])
 @pytest.mark.parametrize("chunks", [1, 2, 3, 7])
@@ -497,7 +520,7 @@ def test_grid_build_is_one_serial_pass_for_any_chunking(rng, sparse, chunks, lis
     b, key, ids = _grid_oracle(plan.cloA, plan.chiA, plan.smallA, plan.dims, plan.bits, listing)
     np.testing.assert_array_equal(boff, np.searchsorted(b, np.arange(nb + 1)))
     np.testing.assert_array_equal(ent_id, ids)
-    np.testing.assert_array_equal(ent_box, np.hstack([lo, hi])[ids].T)
+    np.testing.assert_array_equal(ent_box, np.hstack([lo, hi])[ids])  # one box per row
     np.testing.assert_array_equal(ent_clo, plan.cloA[ids] if listing else np.zeros((0, 3)))
     if sparse:
         np.testing.assert_array_equal(ent_key, key)
