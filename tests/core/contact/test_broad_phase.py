@@ -512,9 +512,11 @@ def test_grid_build_is_one_serial_pass_for_any_chunking(rng, sparse, chunks, lis
         assert not plan.reach.any()
     else:
         s = span.max(axis=1)
-        assert s[plan.smallA].max() < s[~plan.smallA].min() and s[plan.smallA].max() <= bp._MAX_REACH
+        cap = bp._SPLIT_MAX_REACH if plan.h[0] < plan.h[1] else bp._MAX_REACH  # cells cut along the runs
+        assert s[plan.smallA].max() < s[~plan.smallA].min() and s[plan.smallA].max() <= cap
         np.testing.assert_array_equal(plan.reach, span[plan.smallA].max(axis=0))
     nb = plan.boff.size - 1
+    lo, hi = plan.loB, plan.hiB  # the boxes with their axes in the grid key's order
     got = bp._build_grid(plan.cloA, plan.chiA, plan.smallA, listing, plan.dims, plan.bits, nb, lo, hi, chunks=chunks)
     boff, ent_key, ent_id, ent_box, ent_clo = got
     b, key, ids = _grid_oracle(plan.cloA, plan.chiA, plan.smallA, plan.dims, plan.bits, listing)
@@ -665,3 +667,52 @@ def test_plan_with_rows_finds_a_fresh_plans_pairs(rng, sparse):
     for shift in ([-5.0, 0, 0], [0, 0, 5.0]):  # below the origin, beyond the last cell
         assert plan.with_rows(loV + shift, hiV + shift, TV, 0.01) is None
     assert bp._Plan(loE, hiE, E, loE, hiE, E, True).with_rows(loV, hiV, TV, 0.0) is None  # self query
+
+
+#: Column orders that put the test rods' own axis (z in `rods`) at x, y or z.
+_ROD_AXIS_AT = {0: [2, 0, 1], 1: [0, 2, 1], 2: [0, 1, 2]}
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2], ids=["rods-along-x", "rods-along-y", "rods-along-z"])
+@pytest.mark.parametrize("listing", [True, False], ids=["covering", "lower-corner"])
+def test_key_axis_order_follows_the_rods_and_changes_no_pair(rng, axis, listing, monkeypatch):
+    # Consecutive segments of a rod change cells along the rod: the plan's key takes that
+    # axis first whichever it is (boxes in id order fill nearby buckets). The pairs are the
+    # brute-force oracle's and the minima the oracle pairs' bit for bit, the same as with
+    # the natural order.
+    V, E = rods(10, 50, rng)
+    V = np.ascontiguousarray(V[:, _ROD_AXIS_AT[axis]])
+    V1 = V + rng.normal(scale=0.002, size=V.shape)
+    lo, hi = bp._box_arrays(V, V1, E, 0.004)
+    want_pairs = edge_edge_candidates_brute(V, V1, E, 0.004)
+    want = np.full(len(V), np.inf)
+    for i, j in want_pairs:
+        want[E[[i, j]].ravel()] = np.minimum(want[E[[i, j]].ravel()], bp._pair_sq(V, E, i, E, j))
+    for ordered in (True, False):
+        monkeypatch.setattr(bp, "_AXIS_ORDER", ordered)
+        plan = bp._Plan(lo, hi, E, lo, hi, E, True, 0.004, listing=listing)
+        first = 0 if plan.perm is None else plan.perm[0]
+        assert first == (axis if ordered else 0)
+        np.testing.assert_array_equal(plan.pairs(), want_pairs)
+        part = np.full((3, len(V)), np.inf)
+        plan.min_sq_into(V, part)
+        np.testing.assert_array_equal(part.min(axis=0).view(np.uint64), want.view(np.uint64))
+    np.testing.assert_array_equal(lo, bp._box_arrays(V, V1, E, 0.004)[0])  # the caller's boxes untouched
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_rows_of_another_set_follow_the_grids_axis_order(rng, axis):
+    # A sheet whose faces run along `axis` in id order: the faces' grid puts that axis
+    # first, and rows of vertices queried against it (`with_rows`) are permuted the same
+    # way: the pairs of a fresh plan, of the public query and of the oracle.
+    x, E, F, Q = _start_scene("cloth", rng)
+    x = np.ascontiguousarray(x[:, [[1, 0, 2], [0, 1, 2], [0, 2, 1]][axis]])  # the rows run along y
+    loF, hiF = bp._box_arrays(x, x, F, 0.01)
+    loE, hiE = bp._box_arrays(x, x, E, 0.0)
+    plan = bp._Plan(loE, hiE, E, loF, hiF, F, False)
+    assert plan.perm is not None and plan.perm[0] == axis
+    TV = Q[:, None]
+    loV, hiV = bp._box_arrays(x, x, TV, 0.01)
+    shared = plan.with_rows(loV, hiV, TV, 0.01)
+    np.testing.assert_array_equal(shared.pairs(), vertex_face_candidates_brute(x, x, F, 0.01))
+    np.testing.assert_array_equal(plan.edge_face_pairs(x), bp.edge_face_candidates(x, E, F))
