@@ -704,7 +704,7 @@ def test_key_axis_order_follows_the_rods_and_changes_no_pair(rng, axis, listing,
 def test_rows_of_another_set_follow_the_grids_axis_order(rng, axis):
     # A sheet whose faces run along `axis` in id order: the faces' grid puts that axis
     # first, and rows of vertices queried against it (`with_rows`) are permuted the same
-    # way: the pairs of a fresh plan, of the public query and of the oracle.
+    # way: their pairs are the oracle's, and the grid's edge-face pairs the public query's.
     x, E, F, Q = _start_scene("cloth", rng)
     x = np.ascontiguousarray(x[:, [[1, 0, 2], [0, 1, 2], [0, 2, 1]][axis]])  # the rows run along y
     loF, hiF = bp._box_arrays(x, x, F, 0.01)
