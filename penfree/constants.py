@@ -186,6 +186,11 @@ DEFAULT_CLIENT_TOL_REL = 1e-6
 #: per step besides doing nothing, best static prediction first (each replay costs a
 #: few bound computations).
 CLIENT_SELECT_SHORTLIST = 3
+#: Start states whose query results a shared `client.ClientQuery` keeps: a step's
+#: replays start from doing nothing and up to `CLIENT_SELECT_SHORTLIST` + 1 candidates,
+#: each replayed toward two targets one after the other, so the last 4 states cover
+#: every repeat (`client_counts` replays both truncations from the same starts).
+CLIENT_QUERY_MEMO = 4
 #: Vertices whose start separation is within this many contact radii are in contact:
 #: the predictor holds them at x (resting contact lives inside the contact radius).
 #: Not more: on a cloth grid a vertex is ~0.7 edges from the triangle across its

@@ -13,7 +13,8 @@ thread count set to 1 for the call: no other thread is woken or waited for). Its
 loop body is the faster code: Numba compiles a parallel loop body as a separate
 function with ``noalias`` arguments, and the plain serial build of the same source
 measured 1.1-3.8x slower (the broad phase's distance folds, 64K scenes, one thread,
-issue 13); running the parallel build on one thread costs ~1.5 us more per call.
+issue 13); running the parallel build on one thread costs ~3 us more per call
+(2.45 GHz Zen 3: 3.5 us against 0.5 us for a 100-item loop).
 The serial build stays as the tests' oracle of the same bits.
 """
 
@@ -22,6 +23,7 @@ from __future__ import annotations
 import types
 
 import numba
+import numba.np.ufunc.parallel as _numba_parallel
 from numba import njit
 
 #: Work items (pairs, vertices, ...) below which a parallel region does not pay.
@@ -43,7 +45,7 @@ def named(fn, name):
 
 def use_parallel(work: int, min_work: int = PARALLEL_MIN_WORK) -> bool:
     """True when `work` items justify a parallel region (and there is more than one thread)."""
-    return work >= min_work and numba.get_num_threads() > 1
+    return work >= min_work and thread_count() > 1
 
 
 class _Dual:
@@ -60,16 +62,45 @@ class _Dual:
         return one_thread(self.parallel, *args)
 
 
+def _thread_count_calls():
+    """Numba's thread-count getter and setter: the ctypes entry points behind
+    `numba.get_num_threads` / `set_num_threads` when this Numba has them (set once
+    its threads are launched), else those public functions.
+
+    The public pair takes a lock and checks its argument on every call: ~2-3 us each
+    on a 2.45 GHz Zen 3, which made `one_thread` cost 14 us a call, where the entry
+    points cost 0.3-0.8 us and the call ~3.5 us (issue 13: a client replay's queries
+    on a 600-vertex scene make ~20 such calls each).
+    """
+    numba.get_num_threads()  # launches the threads: the entry points exist from here on
+    get = getattr(_numba_parallel, "_get_num_threads", None)
+    put = getattr(_numba_parallel, "_set_num_threads", None)
+    if callable(get) and callable(put):
+        return get, put
+    return numba.get_num_threads, numba.set_num_threads
+
+
+_get_threads = _set_threads = None
+
+
+def thread_count() -> int:
+    """`numba.get_num_threads()` (the calling thread's count), through `_thread_count_calls`."""
+    global _get_threads, _set_threads
+    if _get_threads is None:
+        _get_threads, _set_threads = _thread_count_calls()
+    return _get_threads()
+
+
 def one_thread(kernel, *args):
     """``kernel(*args)`` with Numba's thread count (thread-local) at 1 for the call."""
-    n = numba.get_num_threads()
+    n = thread_count()
     if n == 1:
         return kernel(*args)
-    numba.set_num_threads(1)
+    _set_threads(1)
     try:
         return kernel(*args)
     finally:
-        numba.set_num_threads(n)
+        _set_threads(n)
 
 
 def parallel_kernel(fn, name, min_work=PARALLEL_MIN_WORK, **jit_options):

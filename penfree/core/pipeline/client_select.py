@@ -37,14 +37,14 @@ reach it in fewer passes than doing nothing, which may deadlock there too.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ... import constants as K
 from ...errors import InputError
 from ..fit import models as _fit
-from ..trust.client import CLIENTS, RADIUS_RULES, TRUNCATIONS, replay_step
+from ..trust.client import CLIENTS, RADIUS_RULES, TRUNCATIONS, ClientQuery, replay_step
 
 
 @dataclass
@@ -80,6 +80,7 @@ class ClientModel:
     shortlist: int = K.CLIENT_SELECT_SHORTLIST
     predictor: str = "own"
     repeat: bool = True
+    _query: object = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         if self.predictor not in CLIENTS:
@@ -90,6 +91,15 @@ class ClientModel:
             raise InputError(f"client model radius rule must be one of {RADIUS_RULES}; got {self.radius!r}")
         if not (np.isfinite(self.dhat) and self.dhat > 0):
             raise InputError(f"client model dhat must be > 0; got {self.dhat}")
+
+    def query(self, x):
+        """The own predictor's `ClientQuery` of this scene, one for every step's replays
+        (None for the ipctk predictor)."""
+        if self.predictor != "own":
+            return None
+        if self._query is None or self._query.n != x.shape[0]:
+            self._query = ClientQuery(x, self.edges, self.faces)
+        return self._query
 
 
 def held_target(x, x_pred, d_start, dhat, r_q=np.inf, x_prev=None):
@@ -168,11 +178,12 @@ def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.
     # decides alone where the prediction deadlocks (see `_better`).
     y_half = 0.5 * (x64 + y_hat)
     cap = K.DEFAULT_CLIENT_MAX_ITER
+    query = model.query(x64)
 
     def replay(x_def, y, max_iter):
         return replay_step(x_def, x64, x_pred, y, edges=model.edges, faces=model.faces, dhat=model.dhat,
                            thickness=thickness, truncation=model.truncation, radius=model.radius, client=model.predictor,
-                           max_iter=max_iter)["passes"]
+                           max_iter=max_iter, query=query)["passes"]
 
     def start(cand):
         if cand.D.any() or cand.u.any():

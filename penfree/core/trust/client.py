@@ -104,20 +104,94 @@ class IpctkClient:
         return np.ascontiguousarray(d), flag
 
 
+class ClientQuery:
+    """The own client's neighbourhood queries of one scene, shared by its replays.
+
+    Parameters
+    ----------
+    V : (N, 3) float
+        Any positions of the scene (only N and the validation use them).
+    edges, faces : int arrays or None
+        The topology, as `replay_step` takes it; `replay_step` accepts this query only
+        with these very objects.
+
+    Notes
+    -----
+    Two savings, neither of which changes a result:
+
+    - one `SeparationQuery` for all replays: its cell shapes and reach carry over
+      from pass to pass, and its separations are the same bits as a fresh query's;
+    - a memo of the last `CLIENT_QUERY_MEMO` start states' results (a replay's first
+      pass; later passes are looked up, not kept). Every replay's first pass queries
+      its start state, and the replays of a step start from few states:
+      doing nothing and each candidate's ``x_def``, each replayed toward two targets by
+      `client_select.choose_by_client`, and with both truncations by `client_counts`.
+      A state matches only bit for bit, at the same radius.
+
+    Examples
+    --------
+    >>> x = np.array([[0.0, 0, 0], [1, 0, 0], [0, 0.5, 0.1], [1, 0.5, 0.1]])
+    >>> q = ClientQuery(x, [[0, 1], [2, 3]], None)
+    >>> d = q.separations(x, 5.0, start=True)
+    >>> d.round(3).tolist(), q.separations(x, 5.0) is d, q.info
+    ([0.51, 0.51, 0.51, 0.51], True, {'queries': 1, 'memo_hits': 1})
+    """
+
+    def __init__(self, V, edges, faces):
+        _, self.E, self.F = scene_arrays(V, edges, faces)
+        self.n = np.asarray(V).shape[0]
+        self.edges, self.faces = edges, faces
+        self.query = SeparationQuery(self.E, self.F)  # each pass at the reach of the last
+        self._memo = []  # [x's bits, {radius: separations}, {radius: (stencils, kinds)}], newest last
+        self.info = {"queries": 0, "memo_hits": 0}
+
+    def _entry(self, x, start):
+        bits = x.view(np.uint64)
+        for k, e in enumerate(self._memo):
+            if np.array_equal(e[0], bits):
+                self._memo.append(self._memo.pop(k))
+                return e
+        if not start:  # only start states repeat
+            return [None, {}, {}]
+        self._memo.append([bits.copy(), {}, {}])
+        del self._memo[:-K.CLIENT_QUERY_MEMO]
+        return self._memo[-1]
+
+    def separations(self, x, R, start=False):
+        """(N,) float64 separations at `x` (C-contiguous float64) capped at `R`;
+        `start`: a replay's start state, kept in the memo."""
+        e = self._entry(x, start)
+        if R in e[1]:
+            self.info["memo_hits"] += 1
+        else:
+            e[1][R] = self.query(x, R)
+            self.info["queries"] += 1
+        return e[1][R]
+
+    def stencils(self, x, radius, start=False):
+        """`planar.candidate_stencils` of `x` within `radius` (`start` as in `separations`)."""
+        e = self._entry(x, start)
+        if radius not in e[2]:
+            e[2][radius] = candidate_stencils(x, self.E, self.F, radius)
+        return e[2][radius]
+
+
 class OwnClient:
     """penfree's re-implementation of the client (same interface as `IpctkClient`).
 
     Radii ``(s / 2) min(R - thickness, d_v - thickness)`` with ``s`` =
     `RELAXED_RADIUS_SCALING` (= gamma_p 0.45 times 2), the candidates of the planar
-    filter from penfree's broad phase within ``R + thickness``.
+    filter from penfree's broad phase within ``R + thickness``; the queries through a
+    `ClientQuery` (the replay's own, or one shared by the replays of a scene).
     """
 
-    def __init__(self, V, E, F, dhat, thickness, truncation):
-        _, self.E, self.F = scene_arrays(V, E, F)
+    def __init__(self, V, E, F, dhat, thickness, truncation, query=None):
+        self.q = ClientQuery(V, E, F) if query is None else query
+        self.E, self.F = self.q.E, self.q.F
         self.dhat, self.thickness, self.truncation = float(dhat), float(thickness), truncation
         self.R = 2.0 * self.dhat
         self.n = np.asarray(V).shape[0]
-        self.query = SeparationQuery(self.E, self.F)  # each pass at the reach of the last
+        self._started = False
 
     def set_radius(self, R):
         self.R = float(R)
@@ -125,10 +199,11 @@ class OwnClient:
     def update(self, x):
         x = np.ascontiguousarray(x, dtype=np.float64)
         self.centers = x.copy()
-        d = self.query(x, self.R)
+        start, self._started = not self._started, True  # the replay's first pass: its start state
+        d = self.q.separations(x, self.R, start)
         self.radii = 0.5 * RELAXED_RADIUS_SCALING * np.maximum(0.0, d - self.thickness)
         if self.truncation == "planar":
-            self.stencils, self.kinds = candidate_stencils(x, self.E, self.F, self.R + self.thickness)
+            self.stencils, self.kinds = self.q.stencils(x, self.R + self.thickness, start)
 
     def warm_start(self, x, x_pred):
         x = np.array(x, dtype=np.float64)
@@ -151,20 +226,22 @@ class OwnClient:
         return out, n_trunc > 0.01 * self.n
 
 
-def make_client(client, V, E, F, dhat, thickness, truncation):
-    """An `IpctkClient` or `OwnClient` for one replay."""
+def make_client(client, V, E, F, dhat, thickness, truncation, query=None):
+    """An `IpctkClient` or `OwnClient` for one replay (`query`: the own client's shared
+    `ClientQuery`, if any)."""
     if client not in CLIENTS:
         raise InputError(f"client must be one of {CLIENTS}; got {client!r}")
     if truncation not in TRUNCATIONS:
         raise InputError(f"truncation must be one of {TRUNCATIONS}; got {truncation!r}")
     if not (np.isfinite(dhat) and dhat > 0):
         raise InputError(f"dhat must be finite and > 0 (give --dhat or a contact_radius); got {dhat}")
-    cls = IpctkClient if client == "ipctk" else OwnClient
-    return cls(V, E, F, dhat, thickness, truncation)
+    if client == "ipctk":
+        return IpctkClient(V, E, F, dhat, thickness, truncation)
+    return OwnClient(V, E, F, dhat, thickness, truncation, query)
 
 
 def replay_step(x_s, x, x_pred, x_next, *, edges=None, faces=None, dhat, thickness=0.0, truncation="isotropic",
-                radius="step", client="ipctk", tol=None, max_iter=K.DEFAULT_CLIENT_MAX_ITER) -> dict:
+                radius="step", client="ipctk", tol=None, max_iter=K.DEFAULT_CLIENT_MAX_ITER, query=None) -> dict:
     """CD passes and iterations of one step replayed through the client (module doc).
 
     Parameters
@@ -190,6 +267,10 @@ def replay_step(x_s, x, x_pred, x_next, *, edges=None, faces=None, dhat, thickne
         times ``max_v |x_next - x|``, at least 1e-12).
     max_iter : int
         Cap on iterations after the warm start.
+    query : ClientQuery, optional
+        The own client's queries, shared by the replays of one scene (built from these
+        very `edges` and `faces` objects; ipctk runs its own); the counts are the same
+        as without it.
 
     Returns
     -------
@@ -215,11 +296,19 @@ def replay_step(x_s, x, x_pred, x_next, *, edges=None, faces=None, dhat, thickne
     for name, a in (("x", x), ("x_pred", x_pred), ("x_next", x_next)):
         if a.shape != x_s.shape or a.ndim != 2 or a.shape[1] != 3:
             raise InputError(f"{name} must be (N, 3) like x_s {x_s.shape}; got {a.shape}")
-    E = np.zeros((0, 2), np.int64) if edges is None else np.asarray(edges)
-    F = np.zeros((0, 3), np.int64) if faces is None else np.asarray(faces)
-    if F.size:  # a triangle scene: the client's edges are the face edges
-        _, E, F = scene_arrays(x, E, F)
-    cl = make_client(client, x, E, F, dhat, thickness, truncation)
+    if client != "own":
+        query = None  # ipctk runs its own queries
+    if query is not None:
+        if query.edges is not edges or query.faces is not faces or query.n != x.shape[0]:
+            raise InputError("replay_step: the query was built for another scene (pass the edges and faces "
+                             "objects it was built from, and positions of its N)")
+        E, F = query.E, query.F
+    else:
+        E = np.zeros((0, 2), np.int64) if edges is None else np.asarray(edges)
+        F = np.zeros((0, 3), np.int64) if faces is None else np.asarray(faces)
+        if F.size:  # a triangle scene: the client's edges are the face edges
+            _, E, F = scene_arrays(x, E, F)
+    cl = make_client(client, x, E, F, dhat, thickness, truncation, query)
     if tol is None:
         span = float(np.linalg.norm(x_next - x, axis=1).max()) if x.shape[0] else 0.0
         tol = max(1e-12, K.DEFAULT_CLIENT_TOL_REL * span)
@@ -250,5 +339,5 @@ def replay_step(x_s, x, x_pred, x_next, *, edges=None, faces=None, dhat, thickne
     return {"passes": passes, "iterations": iterations, "converged": left == 0, "n_truncated": left}
 
 
-__all__ = ["replay_step", "inflation_radius", "load_ipctk", "make_client", "TRUNCATIONS", "RADIUS_RULES",
+__all__ = ["replay_step", "ClientQuery", "inflation_radius", "load_ipctk", "make_client", "TRUNCATIONS", "RADIUS_RULES",
            "CLIENTS", "IPCTK_HINT", "KIND_EDGE_EDGE", "KIND_VERTEX_FACE"]

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...errors import InputError
-from .client import RADIUS_RULES, TRUNCATIONS, load_ipctk, replay_step
+from .client import RADIUS_RULES, TRUNCATIONS, ClientQuery, load_ipctk, replay_step
 
 
 def resolve_dhat(dhat, contact_radius, thickness) -> float:
@@ -83,6 +83,8 @@ def client_counts(positions, deformed, frames, *, edges=None, faces=None, dhat, 
             out[f"{key}_{tr}_baseline"] = np.zeros(len(pick), np.int64)
             for rule in radii:
                 out[f"{key}_{tr}_{rule}_deformed"] = np.zeros(len(pick), np.int64)
+    # the own client's queries shared by all replays (both truncations start from the same states)
+    query = ClientQuery(positions[0], edges, faces) if client == "own" and len(pick) else None
     for k, i in enumerate(pick):
         s = frames[i]
         x = np.asarray(positions[s], dtype=np.float64)
@@ -91,7 +93,8 @@ def client_counts(positions, deformed, frames, *, edges=None, faces=None, dhat, 
         x_def = np.asarray(deformed[i], dtype=np.float64)
         same = np.array_equal(x_def, x)
         for tr in truncations:
-            kw = dict(edges=edges, faces=faces, dhat=dhat, thickness=thickness, truncation=tr, client=client)
+            kw = dict(edges=edges, faces=faces, dhat=dhat, thickness=thickness, truncation=tr, client=client,
+                      query=query)
             base = replay_step(x, x, x_pred, x_next, radius="step", **kw)
             out[f"passes_{tr}_baseline"][k], out[f"iterations_{tr}_baseline"][k] = base["passes"], base["iterations"]
             for rule in radii:

@@ -137,6 +137,28 @@ def test_cut_replays_choose_as_full_replays(s):
             best, best_p = i, p
     assert chosen == best
     assert cands[chosen].predicted["client_passes"] == best_p[0]
+    assert model.query(x64).info["memo_hits"] > 0  # each start replayed toward both targets
+
+
+def test_shared_client_queries_change_no_output(monkeypatch):
+    """`deform --client-model` with the model's one `ClientQuery` writes what replays
+    that each query afresh write, bit for bit (swinging coil, 5 steps)."""
+    from penfree.core.pipeline.deform import deform_sequence
+    from tests._samples import SAMPLES
+
+    seq = penfree.read_sequence(SAMPLES / "swinging_coil.h5")
+
+    def run():
+        model = ClientModel(truncation="isotropic", dhat=seq.contact_radius, edges=seq.edges)
+        return deform_sequence(seq, model="auto", frames=(0, 6), client_model=model).steps, model
+
+    shared, model = run()
+    assert model._query is not None and model._query.info["memo_hits"] > 0
+    monkeypatch.setattr(ClientModel, "query", lambda self, x: None)
+    fresh, model = run()
+    assert model._query is None
+    for key in ("deformed", "A", "b", "model", "certificate_margin"):
+        np.testing.assert_array_equal(np.asarray(shared[key]), np.asarray(fresh[key]), err_msg=key)
 
 
 def test_client_model_validation():

@@ -7,7 +7,9 @@ import importlib.util
 import numpy as np
 import pytest
 
-from penfree.core.trust.client import inflation_radius, replay_step
+from penfree import constants as K
+from penfree.core.trust.bounds import per_vertex_separation, scene_arrays
+from penfree.core.trust.client import ClientQuery, inflation_radius, replay_step
 from penfree.core.trust.client_stats import client_counts, resolve_dhat, summarize_counts
 from penfree.errors import InputError
 
@@ -100,6 +102,65 @@ def test_client_counts_identity_equals_baseline(sample_sequence):
             np.testing.assert_array_equal(counts[f"passes_{tr}_{rule}_deformed"], counts[f"passes_{tr}_baseline"])
     sm = summarize_counts(counts)
     assert sm["isotropic"]["step_change"] == 0.0 and sm["n_steps"] == 3
+
+
+@pytest.mark.parametrize("truncation", ["isotropic", "planar"])
+def test_a_shared_query_counts_as_fresh_replays(truncation, sample_sequence):
+    """One `ClientQuery` for every replay of a scene (its reach and cells carried over,
+    the start states memoised) gives the counts of replays that each query afresh."""
+    seq = sample_sequence
+    P = seq.positions
+    dhat = resolve_dhat(None, seq.contact_radius, seq.thickness)
+    q = ClientQuery(P[0], seq.edges, seq.faces)
+    kw = dict(edges=seq.edges, faces=seq.faces, dhat=dhat, thickness=seq.thickness, truncation=truncation,
+              client="own")
+    n = 0
+    for s in (3, 9):
+        x = P[s]
+        x_pred = 2 * x - P[s - 1]
+        for start in (x, 0.5 * (x + x_pred), x):  # the repeated start is answered from the memo
+            for rule in ("step", "own"):
+                for y in (P[s + 1], x_pred):
+                    a = replay_step(start, x, x_pred, y, radius=rule, query=q, **kw)
+                    b = replay_step(start, x, x_pred, y, radius=rule, **kw)
+                    assert a == b
+                    n += 1
+    assert q.info["memo_hits"] >= n // 2  # every second replay repeats its start, at least
+    assert q.info["queries"] > 0
+
+
+def test_client_query_memo_matches_bits():
+    """The memo answers a start state only bit for bit at the same radius, keeps the
+    last `CLIENT_QUERY_MEMO` start states, and its values are a fresh query's."""
+    rng = np.random.default_rng(5)
+    x = rng.random((40, 3))
+    E = np.array([[i, i + 1] for i in range(0, 40, 2)])
+    q = ClientQuery(x, E, None)
+    _, E_, F_ = scene_arrays(x, E, None)
+    d = q.separations(x, 0.3, start=True)
+    np.testing.assert_array_equal(d, per_vertex_separation(x, E_, F_, 0.3))
+    assert q.separations(x.copy(), 0.3) is d and q.info == {"queries": 1, "memo_hits": 1}
+    y = x.copy()
+    y[7, 1] = np.nextafter(y[7, 1], 2.0)  # one ulp away: another state
+    np.testing.assert_array_equal(q.separations(y, 0.3), per_vertex_separation(y, E_, F_, 0.3))
+    np.testing.assert_array_equal(q.separations(x, 0.5), per_vertex_separation(x, E_, F_, 0.5))
+    assert q.info == {"queries": 3, "memo_hits": 1}
+    q.separations(y, 0.3)  # not a start state: not kept
+    assert q.info["queries"] == 4
+    for k in range(K.CLIENT_QUERY_MEMO):
+        q.separations(x + (k + 1), 0.3, start=True)
+    q.separations(x, 0.3)  # pushed out by the newer start states
+    assert q.info["queries"] == 5 + K.CLIENT_QUERY_MEMO
+
+
+def test_replay_refuses_a_query_of_another_scene():
+    q = ClientQuery(X, EDGES, None)
+    with pytest.raises(InputError, match="another scene"):
+        replay_step(X, X, X, X, edges=[[0, 1], [2, 3]], dhat=1.0, client="own", query=q)
+    with pytest.raises(InputError, match="another scene"):
+        replay_step(X[:2], X[:2], X[:2], X[:2], edges=EDGES, dhat=1.0, client="own", query=q)
+    r = replay_step(X, X, X + V, X + V, edges=EDGES, dhat=1.0, client="own", query=q)
+    assert (r["passes"], r["iterations"]) == (3, 2)
 
 
 def test_bad_arguments():
