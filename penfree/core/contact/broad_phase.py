@@ -988,10 +988,8 @@ class _Plan:
         if cells == "cube":
             h = np.full(3, h.max())
         covering = self.self_query and listing
-        self.perm = None
-        perm = _axis_order(loB, origin, h) if _AXIS_ORDER else None
+        self.perm = perm = _axis_order(loB, origin, h) if _AXIS_ORDER else None
         if perm is not None:  # from here on the plan sees the boxes' axes in key order
-            self.perm = perm
             loA, hiA = _permuted(loA, hiA, perm)
             loB, hiB = (loA, hiA) if self_query else _permuted(loB, hiB, perm)
             origin, h, spans = origin[perm], h[perm], spans[perm]
