@@ -47,7 +47,12 @@ is O(n + output), never O(n^2). Two passes (count, then fill) cost 2-4x more
 without storing pairs (`fold_min_sq`, `min_pair_sq`) and filters edge-face pairs
 through certified orientation signs (`edge_face_candidates`). A built grid can be
 queried by a second set of rows (`_Plan.with_rows`): the certificate path's edge-face
-candidates and vertex-face fold share the faces' grid (`start_pass`).
+candidates and vertex-face fold share the faces' grid (`start_pass`). On a triangle
+mesh the certificate path's start pass is one visit: every edge-face box hit (adjacent
+ones too) folds the edge-edge and vertex-face pairs it owns (`_Plan.start_pairs`,
+`_start_owners`: each such pair is reached through exactly one hit, since a face's box
+holds its edges' and an edge's its vertices'), so neither fold builds a grid or visits
+rows of its own.
 
 Row scan (issue 13, A/B in one process against the previous version, same bits):
 the covering grid's emit-once rule compares stored lower cell corners (`ent_clo`, the
@@ -132,6 +137,9 @@ _BIG_ROW_CELLS = 512
 _BIG_CELLS = 64
 #: Row scans in blocks of this many entries (the compacted scan's scratch, `_scan`).
 _SCAN_BLOCK = 256
+#: The fused start pass's scratch for one row's box hits (`_start_chunks`); a row with
+#: more is visited again into a scratch twice its count.
+_ROW_HITS = 256
 #: Cell shapes of a plan: cubes at the largest axis's size, or per-axis sizes.
 CELL_SHAPES = ("cube", "axis")
 #: `choose_cells`: a visited cell costs about as much as this many scanned entries, and
@@ -157,7 +165,7 @@ _DENSE_FACTOR = 8
 #: 1 is ~1.5x slower: more cells per box).
 _CELL_FACTOR = 2.0
 
-MODE_COUNT, MODE_FILL, MODE_MIN, MODE_GLOBAL_MIN, MODE_FILL_EF = 0, 1, 2, 3, 4
+MODE_COUNT, MODE_FILL, MODE_MIN, MODE_GLOBAL_MIN, MODE_FILL_EF, MODE_FILL_ALL = 0, 1, 2, 3, 4, 5
 
 #: The grid's key orders the axes by how often consecutive boxes (in id order) change
 #: cells along them, the most often first (`_axis_order`; the plan permutes its boxes'
@@ -531,7 +539,7 @@ def _record(mode, i, j, TA, TB, J, pos, lim, V, dmin, lb_sq):
             return 0
         if pos < lim:
             J[pos] = j
-    elif mode == MODE_FILL:
+    elif mode == MODE_FILL or mode == MODE_FILL_ALL:
         if pos < lim:  # beyond `lim` a full chunk only counts (see _pairs_pass)
             J[pos] = j
     elif mode == MODE_GLOBAL_MIN:
@@ -607,7 +615,7 @@ def _scan(mode, i, box, TA, TB, bits, key, ent_key, ent_id, ent_box, ent_clo, co
                                      or max(corner[2], ent_clo[e, 2]) != cell[2]):
                 continue
             j = ent_id[e]
-            if _adjacent(TA, i, TB, j):
+            if mode != MODE_FILL_ALL and _adjacent(TA, i, TB, j):
                 continue
             lb_sq = 0.0
             if mode == MODE_MIN or mode == MODE_GLOBAL_MIN:
@@ -627,7 +635,8 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, 
     """Visit the partners j of row i; return how many there are.
 
     MODE_COUNT only counts; MODE_FILL writes the partners j into J from `pos` on
-    (below `lim`; the count goes on beyond it);
+    (below `lim`; the count goes on beyond it), MODE_FILL_ALL likewise with the
+    adjacent ones (every box hit: the certificate path's fused start pass);
     MODE_MIN folds the squared pair distance into `dmin` (per vertex), MODE_GLOBAL_MIN
     into ``dmin[0]``.
 
@@ -648,7 +657,7 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, 
     if not smallA[i]:
         j0 = i + 1 if self_query else 0
         for j in range(j0, loB.shape[0]):
-            if _overlap(loA, hiA, i, loB, hiB, j) and not _adjacent(TA, i, TB, j):
+            if _overlap(loA, hiA, i, loB, hiB, j) and (mode == MODE_FILL_ALL or not _adjacent(TA, i, TB, j)):
                 n += 1 if mode == MODE_COUNT else _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin,
                                                                     _big_gap_sq(loA, hiA, i, loB, hiB, j, mode, gap_off))
         return n
@@ -684,7 +693,7 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, 
         j = bigB[kb]
         if self_query and j <= i:
             continue
-        if _overlap(loA, hiA, i, loB, hiB, j) and not _adjacent(TA, i, TB, j):
+        if _overlap(loA, hiA, i, loB, hiB, j) and (mode == MODE_FILL_ALL or not _adjacent(TA, i, TB, j)):
             n += 1 if mode == MODE_COUNT else _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin,
                                                       _big_gap_sq(loA, hiA, i, loB, hiB, j, mode, gap_off))
     return n
@@ -746,6 +755,137 @@ def _min_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
 # query never waits for a descheduled thread (penfree.core.parallel).
 _fill_chunks = parallel_kernel(_fill_chunks_py, "_bp_fill_chunks", _PARALLEL_MIN_ROWS)
 _min_rows = parallel_kernel(_min_rows_py, "_bp_min_rows", _PARALLEL_MIN_ROWS)
+
+
+@njit(cache=True, inline="always")
+def _fold_owned(V, E, i, F, j, face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, inflation, dmin):
+    """Fold into ``dmin[0]`` the edge-edge and vertex-face pairs that the box hit (edge i,
+    face j) owns (`_start_owners`): each edge b > i of face j whose owner face is j, and
+    each end v of edge i whose owner edge is i; a pair counts when its inflated boxes
+    overlap and it shares no vertex, as in `min_pair_sq`."""
+    for k in range(3):
+        b = face_edges[j, k]  # -1 for a repeated vertex: never above i
+        if b > i and owner_face[b] == j and _overlap(loE, hiE, i, loE, hiE, b) and not _adjacent(E, i, E, b):
+            d = _pair_sq(V, E, i, E, b)
+            if d < dmin[0]:
+                dmin[0] = d
+    for a in range(2):
+        v = E[i, a]
+        if owner_edge[v] != i or v == F[j, 0] or v == F[j, 1] or v == F[j, 2]:
+            continue
+        meets = True
+        for ax in range(3):  # the vertex's box as `_boxes` makes it: x - inflation, x + inflation
+            if V[v, ax] - inflation > hiF[j, ax] or loF[j, ax] > V[v, ax] + inflation:
+                meets = False
+        if meets:
+            p, q, r = F[j, 0], F[j, 1], F[j, 2]
+            d = _pt(V[v, 0], V[v, 1], V[v, 2], V[p, 0], V[p, 1], V[p, 2],
+                    V[q, 0], V[q, 1], V[q, 2], V[r, 0], V[r, 1], V[r, 2])
+            if d < dmin[0]:
+                dmin[0] = d
+
+
+def _start_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
+                     dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
+                     starts, todo, bstart, blim, counts, J, full, V,
+                     face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, inflation, partial):
+    """`_fill_chunks` of MODE_FILL_EF for the rows A = edges, B = faces, fused with the
+    edge-edge and vertex-face folds (`_Plan.start_pairs`): each row lists all its box
+    hits (adjacent faces too) in a scratch, folds the pairs each hit owns into its
+    chunk's ``partial[c, 0]`` (`_fold_owned`) and keeps the non-adjacent hits that the
+    float filter cannot clear, as MODE_FILL_EF does. A refilled chunk folds again: min
+    is exact, so the minimum does not change, and no chunk writes another's slots."""
+    none = np.empty(0)
+    for c in prange(starts.shape[0] - 1):
+        if not todo[c]:
+            continue
+        pos = bstart[c]
+        lim = blim[c]
+        over = False
+        buf = np.empty(_SCAN_BLOCK, dtype=np.int64)
+        hits = np.empty(_ROW_HITS, dtype=np.int64)
+        dmin = partial[c]
+        for i in range(starts[c], starts[c + 1]):
+            n = _visit_row(MODE_FILL_ALL, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
+                           dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
+                           hits, 0, hits.shape[0], V, none, buf)
+            if n > hits.shape[0]:  # a row with more hits than the scratch: visit it again
+                hits = np.empty(2 * n, dtype=np.int64)
+                n = _visit_row(MODE_FILL_ALL, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
+                               dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
+                               hits, 0, hits.shape[0], V, none, buf)
+            kept = 0
+            for q in range(n):
+                j = hits[q]
+                _fold_owned(V, TA, i, TB, j, face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, inflation, dmin)
+                if not _adjacent(TA, i, TB, j) and segment_may_meet_triangle_at(
+                        V, TA[i, 0], TA[i, 1], TB[j, 0], TB[j, 1], TB[j, 2]):
+                    if not over and pos + kept < lim:
+                        J[pos + kept] = j
+                    kept += 1
+            counts[i] = kept
+            if not over:
+                if pos + kept > lim:
+                    over = True
+                else:
+                    sort_segment(J, pos, pos + kept)
+                    pos += kept
+        full[c] = over
+
+
+_start_chunks = parallel_kernel(_start_chunks_py, "_bp_start_chunks", _PARALLEL_MIN_ROWS)
+
+
+@njit(cache=True)
+def _start_owners(E, F, vertices, n):
+    """The owners of the fused start pass (`_Plan.start_pairs`).
+
+    Returns (face_edges (K, 3), owner_face (M,), owner_edge (n,), ok): face_edges[f, c]
+    is the row of E of face f's edge (F[f, c], F[f, c + 1]) (-1 where the two repeat a
+    vertex); an edge's owner face is the first face that has it; a vertex's owner edge
+    is the first edge that has it, -1 for a vertex not in `vertices`. ok is False
+    (the separate folds are needed) unless E is sorted as `scene_edges` makes it (rows
+    ascending, each ``E[r, 0] < E[r, 1]``), every edge is some face's, and every vertex
+    of `vertices` some edge's: then every pair of the two folds is owned by a box hit.
+    """
+    M, K = E.shape[0], F.shape[0]
+    face_edges = np.full((K, 3), -1, dtype=np.int64)
+    owner_face = np.full(M, -1, dtype=np.int64)
+    owner_edge = np.full(n, -1, dtype=np.int64)
+    first = np.zeros(n + 1, dtype=np.int64)  # the rows of E with E[r, 0] = v: first[v]..first[v + 1]
+    for r in range(M):
+        if E[r, 0] >= E[r, 1] or (r > 0 and (E[r - 1, 0] > E[r, 0] or (E[r - 1, 0] == E[r, 0] and E[r - 1, 1] >= E[r, 1]))):
+            return face_edges, owner_face, owner_edge, False
+        first[E[r, 0] + 1] += 1
+    for v in range(n):
+        first[v + 1] += first[v]
+    for f in range(K):
+        for c in range(3):
+            a, b = F[f, c], F[f, (c + 1) % 3]
+            if a == b:
+                continue
+            lo, hi = min(a, b), max(a, b)
+            for r in range(first[lo], first[lo + 1]):
+                if E[r, 1] == hi:
+                    face_edges[f, c] = r
+                    if owner_face[r] < 0:
+                        owner_face[r] = f
+                    break
+    for r in range(M):
+        if owner_face[r] < 0:
+            return face_edges, owner_face, owner_edge, False
+    wanted = np.zeros(n, dtype=np.bool_)
+    for v in vertices:
+        wanted[v] = True
+    for r in range(M):
+        for a in range(2):
+            v = E[r, a]
+            if wanted[v] and owner_edge[v] < 0:
+                owner_edge[v] = r
+    for v in vertices:
+        if owner_edge[v] < 0:
+            return face_edges, owner_face, owner_edge, False
+    return face_edges, owner_face, owner_edge, True
 
 
 def _corners_py(lo, hi, corners):
@@ -844,10 +984,25 @@ def _gather_chunks_py(J_buf, bstart, J_buf2, bstart2, starts, counts, offsets, f
 _gather_chunks = parallel_kernel(_gather_chunks_py, "_bp_gather_chunks")
 
 
-def _pairs_pass(args, n, mode=MODE_FILL, V=None):
-    """(K, 2) pairs (i, j) in row order, in one pass over the rows (see `_Plan.pairs`)."""
+def _pair_chunks(n):
+    """The row chunks of `_pairs_pass` over n rows."""
+    return max(1, min(_PAIR_CHUNKS, n // _PAIR_CHUNK_MIN_ROWS))
+
+
+def _pairs_pass(args, n, mode=MODE_FILL, V=None, fold=None):
+    """(K, 2) pairs (i, j) in row order, in one pass over the rows (see `_Plan.pairs`).
+
+    `fold` (MODE_FILL_EF only): the arguments of `_start_chunks` after `V` (owners,
+    boxes, inflation, and ``partial`` with a row per chunk), whose kernel then fills.
+    """
     V = np.empty((0, 3)) if V is None else V
-    n_chunks = max(1, min(_PAIR_CHUNKS, n // _PAIR_CHUNK_MIN_ROWS))
+    n_chunks = _pair_chunks(n)
+
+    def fill(todo, bstart_, blim_, counts_, J_, full_):
+        if fold is None:
+            _fill_chunks(n, *args, starts, todo, bstart_, blim_, counts_, J_, full_, mode, V)
+        else:
+            _start_chunks(n, *args, starts, todo, bstart_, blim_, counts_, J_, full_, V, *fold)
     starts = (np.arange(n_chunks + 1, dtype=np.int64) * n) // n_chunks
     # Capacity from a sample of rows (a stride over all of them), with slack; a chunk
     # that still runs out is refilled at exact offsets, so the guess only costs time.
@@ -870,8 +1025,7 @@ def _pairs_pass(args, n, mode=MODE_FILL, V=None):
     counts = np.empty(n, dtype=np.int64)
     full = np.zeros(n_chunks, dtype=np.bool_)
     J_buf = np.empty(bstart[-1], dtype=np.int64)
-    _fill_chunks(n, *args, starts, np.ones(n_chunks, dtype=np.bool_), bstart[:-1], bstart[1:],
-                 counts, J_buf, full, mode, V)
+    fill(np.ones(n_chunks, dtype=np.bool_), bstart[:-1], bstart[1:], counts, J_buf, full)
     offsets = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(counts, out=offsets[1:])
     bstart2 = np.zeros(n_chunks + 1, dtype=np.int64)
@@ -879,8 +1033,7 @@ def _pairs_pass(args, n, mode=MODE_FILL, V=None):
         need = np.where(full, offsets[starts[1:]] - offsets[starts[:-1]], 0)
         np.cumsum(need, out=bstart2[1:])
         J_buf2 = np.empty(bstart2[-1], dtype=np.int64)
-        _fill_chunks(n, *args, starts, full.copy(), bstart2[:-1], bstart2[1:], counts, J_buf2,
-                     np.zeros(n_chunks, dtype=np.bool_), mode, V)
+        fill(full.copy(), bstart2[:-1], bstart2[1:], counts, J_buf2, np.zeros(n_chunks, dtype=np.bool_))
     else:
         J_buf2 = np.empty(0, dtype=np.int64)
     P = np.empty((offsets[-1], 2), dtype=np.int64)
@@ -1110,6 +1263,27 @@ class _Plan:
         if self.empty:
             return np.zeros((0, 2), dtype=np.int64)
         return _pairs_pass(self._args(), self.loA.shape[0], MODE_FILL_EF, V)
+
+    def start_pairs(self, V, owners, loE, hiE, loF, hiF, inflation):
+        """`edge_face_pairs` of rows A = edges E, B = faces F (this plan's), and the
+        smaller of the edge-edge and vertex-face minima of `start_pass`, in one pass.
+
+        `owners`: `_start_owners` of (E, F, vertices), ok; loE.. hiF: the boxes of E and
+        F at V, inflated by `inflation`, in V's axes (this plan's are permuted).
+        Every pair of the two folds is reached through a box hit (edge, face): an edge
+        pair (a, b), a < b, from row a and the owner face f of b (f's box holds b's,
+        so it meets a's), a vertex-face pair (v, f) from the owner edge of v (its box
+        holds v's). The vertex-face pairs are the same floats as `min_pair_sq`'s; an
+        edge pair is evaluated as (smaller id, larger), where the self fold takes the
+        row whose cell comes first, so the minimum may differ from that fold's in its
+        last bits (the distance kernels' rounding, `distance` module).
+        """
+        face_edges, owner_face, owner_edge = owners[:3]
+        n = self.loA.shape[0]
+        partial = np.full((_pair_chunks(n), 1), np.inf)
+        cand = _pairs_pass(self._args(), n, MODE_FILL_EF, V,
+                           (face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, float(inflation), partial))
+        return cand, float(partial.min())
 
     def min_sq_into(self, V, partial, mode=MODE_MIN):
         """Fold squared pair distances into `partial` (C, N): per-vertex minima.
@@ -1379,6 +1553,9 @@ def start_pass(x, E, F, vertices, inflation):
     (`_Plan.with_rows`; its own grid where the vertices' boxes leave that one's cells),
     and the edge boxes serve both the edge-face rows and the edge-edge grid: two grids
     and three box arrays instead of three and five (~10 ms of a 64K cloth's ~0.1 s).
+    Where every edge is a face's and every vertex an edge's (a triangle mesh,
+    `_start_owners`), one pass over the edge-face box hits also folds both minima
+    (`_Plan.start_pairs`): one grid, no fold of its own for either.
     """
     cand, d2 = np.zeros((0, 2), dtype=np.int64), np.inf
     loE, hiE = _box_arrays(x, x, E, inflation)
@@ -1386,6 +1563,9 @@ def start_pass(x, E, F, vertices, inflation):
         loF, hiF = _box_arrays(x, x, F, inflation)
         plan = _Plan(loE, hiE, E, loF, hiF, F, False, inflation) if len(E) else None
         if plan is not None:
+            owners = _start_owners(E, F, np.asarray(vertices, dtype=np.int64), x.shape[0])
+            if owners[3]:
+                return plan.start_pairs(x, owners, loE, hiE, loF, hiF, inflation)
             cand = plan.edge_face_pairs(x)
         if len(vertices):
             TV = np.ascontiguousarray(np.asarray(vertices, dtype=np.int64)[:, None])

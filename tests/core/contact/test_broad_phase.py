@@ -633,9 +633,118 @@ def test_start_pass_is_the_three_queries(rng, kind, inflation):
     assert np.all((lo_e[k] <= hi_f[f]) & (lo_f[f] <= hi_e[k]))
     ee = bp.min_pair_sq(x, E, E, inflation, True)
     vf = bp.min_pair_sq(x, Q[:, None], F, inflation, False)
-    assert d2 == min(ee, vf)
+    # The fused pass (a triangle mesh) evaluates an edge pair smaller id first, the
+    # edge-edge fold in its cell order: the same minimum up to the kernels' rounding.
+    assert bp._start_owners(E, F, Q, len(x))[3] == (kind != "free-vertex-outside")
+    assert abs(d2 - min(ee, vf)) <= 1e-12 * min(ee, vf)
     if kind == "folded-cloth" and inflation == 0.02:  # the layers 0.01 apart: both folds see them
         assert max(ee, vf) < 0.011 ** 2
+
+
+def _separate_start_pass(monkeypatch, x, E, F, Q, inflation):
+    """`start_pass` through its separate folds (as for a mesh that is not all triangles)."""
+    owners = bp._start_owners
+    with monkeypatch.context() as m:
+        m.setattr(bp, "_start_owners", lambda *a: owners(*a)[:3] + (False,))
+        return bp.start_pass(x, E, F, Q, inflation)
+
+
+def _big_triangle_scene(rng):
+    """A flat sheet and one triangle whose edges' boxes hold all of it: rows with more
+    box hits than the fused pass's scratch (`_ROW_HITS`), big boxes on both sides."""
+    V, F = cloth(24, rng, amp=0.0)
+    n = len(V)
+    V = np.concatenate([V, [[-0.05, -0.05, -0.1], [1.05, 1.05, 0.1], [1.05, -0.05, 0.0]]])
+    F = np.concatenate([F, [[n, n + 1, n + 2]]])
+    assert len(F) > 2 * bp._ROW_HITS
+    return np.ascontiguousarray(V), edges_from_faces(F), F.astype(np.int64), np.arange(len(V), dtype=np.int64)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("refill", [False, True], ids=["fits", "refilled"])
+@pytest.mark.parametrize("kind", ["cloth", "folded-cloth", "far-from-origin", "big-triangle"])
+def test_fused_start_pass_is_the_separate_one(rng, monkeypatch, kind, refill, threads):
+    # One pass over the edge-face box hits (adjacent ones too) folds the edge-edge and
+    # vertex-face minima: the same candidates as the separate pass, the same minimum up
+    # to the kernels' rounding, the same bits on 1 and 2 threads, in many chunks, with
+    # every chunk's buffer overflowing and refilled (a refill folds again).
+    import numba
+
+    x, E, F, Q = _big_triangle_scene(rng) if kind == "big-triangle" else _start_scene(kind, rng)
+    assert bp._start_owners(E, F, Q, len(x))[3]
+    monkeypatch.setattr(bp, "_PAIR_CHUNK_MIN_ROWS", 16)
+    monkeypatch.setattr(bp._start_chunks, "min_work", 0)
+    if refill:
+        monkeypatch.setattr(bp, "_CAP_SLACK", 0.0)
+        monkeypatch.setattr(bp, "_CAP_PAD", 0)
+    for inflation in (0.0, 0.01):
+        want_cand, want_d2 = _separate_start_pass(monkeypatch, x, E, F, Q, inflation)
+        old = numba.get_num_threads()
+        try:
+            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+            cand, d2 = bp.start_pass(x, E, F, Q, inflation)
+            numba.set_num_threads(1)
+            cand1, d21 = bp.start_pass(x, E, F, Q, inflation)
+        finally:
+            numba.set_num_threads(old)
+        np.testing.assert_array_equal(cand, want_cand)
+        assert abs(d2 - want_d2) <= 1e-12 * want_d2
+        np.testing.assert_array_equal(cand1, cand)
+        assert d21 == d2
+        if kind == "big-triangle":  # the triangle crosses the sheet
+            assert len(cand) > 0
+
+
+@pytest.mark.parametrize("inflation", [0.0, 0.004, 0.03])
+@pytest.mark.parametrize("kind", ["cloth", "folded-cloth", "vertex-subset"])
+def test_fused_start_pass_minimum_is_exact(rng, kind, inflation):
+    # Against the O(n^2) oracle in exact arithmetic over the pairs whose inflated boxes
+    # overlap: edge pairs sharing no vertex, and the listed vertices against the faces.
+    V, F = cloth(8, rng)
+    if kind == "folded-cloth":
+        V = np.concatenate([V, V + [0.0, 0.0, 0.005]])
+        F = np.concatenate([F, F + len(V) // 2])
+    V, F = np.ascontiguousarray(V), F.astype(np.int64)
+    E = edges_from_faces(F)
+    Q = np.arange(len(V), dtype=np.int64)
+    if kind == "vertex-subset":
+        Q = Q[::3]
+    assert bp._start_owners(E, F, Q, len(V))[3]
+    _, d2 = bp.start_pass(V, E, F, Q, inflation)
+    want = min(_min_pair_sq_brute(V, E, E, inflation, True),
+               _min_pair_sq_brute(V, Q[:, None], F, inflation, False))
+    if np.isinf(want):
+        assert np.isinf(d2)
+    else:
+        assert abs(d2 - want) <= 1e-12 * max(want, 1e-300)
+
+
+def test_start_owners_of_a_triangle_mesh_and_what_falls_back(rng):
+    # Each face's edge rows, an edge's first face, a vertex's first edge (numpy oracle);
+    # not ok (the separate folds run) for an edge in no face, a listed vertex in no
+    # edge, or E not sorted as `scene_edges` makes it.
+    V, F = cloth(6, rng)
+    F = np.concatenate([F, [[3, 3, 9]]]).astype(np.int64)  # a degenerate face: one edge twice
+    E = edges_from_faces(F)
+    n = len(V)
+    Q = np.arange(n, dtype=np.int64)
+    face_edges, owner_face, owner_edge, ok = bp._start_owners(E, F, Q, n)
+    assert ok
+    row = {tuple(e): r for r, e in enumerate(E.tolist())}
+    for f, tri in enumerate(F.tolist()):
+        for c in range(3):
+            a, b = tri[c], tri[(c + 1) % 3]
+            assert face_edges[f, c] == (-1 if a == b else row[(min(a, b), max(a, b))])
+    for r in range(len(E)):
+        assert owner_face[r] == min(f for f in range(len(F)) if r in face_edges[f])
+    for v in range(n):
+        assert owner_edge[v] == np.flatnonzero((E == v).any(1))[0]
+    rod = np.array([[n, n + 1]])  # an edge of no face (a rod beside the cloth)
+    assert not bp._start_owners(np.concatenate([E, rod]), F, np.arange(n + 2), n + 2)[3]
+    assert not bp._start_owners(E, F, np.arange(n + 1), n + 1)[3]  # vertex n in no edge
+    assert bp._start_owners(E, F, Q, n + 1)[3]  # ... unless it is not listed
+    assert not bp._start_owners(E[::-1].copy(), F, Q, n)[3]
+    assert not bp._start_owners(E[:, ::-1].copy(), F, Q, n)[3]
 
 
 def test_start_pass_without_faces_or_with_one_edge(rng):
