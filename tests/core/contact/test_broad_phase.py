@@ -709,14 +709,26 @@ def test_fused_start_pass_minimum_is_exact(rng, kind, inflation):
     Q = np.arange(len(V), dtype=np.int64)
     if kind == "vertex-subset":
         Q = Q[::3]
-    assert bp._start_owners(E, F, Q, len(V))[3]
+    face_edges, owner_face, owner_edge, ok = bp._start_owners(E, F, Q, len(V))
+    assert ok
+    want_ee = _min_pair_sq_brute(V, E, E, inflation, True)
+    want_vf = _min_pair_sq_brute(V, Q[:, None], F, inflation, False)
     _, d2 = bp.start_pass(V, E, F, Q, inflation)
-    want = min(_min_pair_sq_brute(V, E, E, inflation, True),
-               _min_pair_sq_brute(V, Q[:, None], F, inflation, False))
-    if np.isinf(want):
-        assert np.isinf(d2)
-    else:
-        assert abs(d2 - want) <= 1e-12 * max(want, 1e-300)
+    # Each fold alone: with no owner edge (no owner face) the walk folds only the
+    # edge-edge (vertex-face) pairs.
+    lo_e, hi_e = bp._box_arrays(V, V, E, inflation)
+    lo_f, hi_f = bp._box_arrays(V, V, F, inflation)
+    plan = bp._Plan(lo_e, hi_e, E, lo_f, hi_f, F, False, inflation)
+    none_e, none_f = np.full_like(owner_edge, -1), np.full_like(owner_face, -1)
+    _, ee = plan.start_pairs(V, (face_edges, owner_face, none_e), lo_e, hi_e, lo_f, hi_f, inflation)
+    _, vf = plan.start_pairs(V, (face_edges, none_f, owner_edge), lo_e, hi_e, lo_f, hi_f, inflation)
+    for got, want in ((d2, min(want_ee, want_vf)), (ee, want_ee), (vf, want_vf)):
+        if np.isinf(want):
+            assert np.isinf(got)
+        else:
+            assert abs(got - want) <= 1e-12 * max(want, 1e-300)
+    if inflation > 0:
+        assert np.isfinite(want_ee) and np.isfinite(want_vf)
 
 
 def test_start_owners_of_a_triangle_mesh_and_what_falls_back(rng):
