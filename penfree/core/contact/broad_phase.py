@@ -699,6 +699,19 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, 
     return n
 
 
+@njit(cache=True, inline="always")
+def _close_row(J, pos, n, lim, over):
+    """After a row wrote its n partners into J from `pos`: the next row's `pos`, and
+    whether the chunk's slots (below `lim`) ran out; a chunk that ran out only counts
+    from there on (`_pairs_pass` refills it). A row that fits is sorted in place."""
+    if over:
+        return pos, True
+    if pos + n > lim:
+        return pos, True
+    sort_segment(J, pos, pos + n)
+    return pos + n, False
+
+
 def _fill_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
                     dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
                     starts, todo, bstart, blim, counts, J, full, mode, V):
@@ -725,12 +738,7 @@ def _fill_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
                            dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
                            J, pos, -1 if over else lim, V, dmin, buf)
             counts[i] = n
-            if not over:
-                if pos + n > lim:
-                    over = True
-                else:
-                    sort_segment(J, pos, pos + n)
-                    pos += n
+            pos, over = _close_row(J, pos, n, lim, over)
         full[c] = over
 
 
@@ -824,12 +832,7 @@ def _start_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
                         J[pos + kept] = j
                     kept += 1
             counts[i] = kept
-            if not over:
-                if pos + kept > lim:
-                    over = True
-                else:
-                    sort_segment(J, pos, pos + kept)
-                    pos += kept
+            pos, over = _close_row(J, pos, kept, lim, over)
         full[c] = over
 
 
@@ -992,18 +995,20 @@ def _pair_chunks(n):
 def _pairs_pass(args, n, mode=MODE_FILL, V=None, fold=None):
     """(K, 2) pairs (i, j) in row order, in one pass over the rows (see `_Plan.pairs`).
 
-    `fold` (MODE_FILL_EF only): the arguments of `_start_chunks` after `V` (owners,
-    boxes, inflation, and ``partial`` with a row per chunk), whose kernel then fills.
+    `fold` (with MODE_FILL_EF): the arguments of `_start_chunks` after `V` (owners,
+    boxes, inflation, and ``partial`` with a row per chunk), whose kernel then fills
+    (it always keeps edge-face pairs as MODE_FILL_EF does).
     """
     V = np.empty((0, 3)) if V is None else V
     n_chunks = _pair_chunks(n)
+    starts = (np.arange(n_chunks + 1, dtype=np.int64) * n) // n_chunks
 
     def fill(todo, bstart_, blim_, counts_, J_, full_):
         if fold is None:
             _fill_chunks(n, *args, starts, todo, bstart_, blim_, counts_, J_, full_, mode, V)
         else:
             _start_chunks(n, *args, starts, todo, bstart_, blim_, counts_, J_, full_, V, *fold)
-    starts = (np.arange(n_chunks + 1, dtype=np.int64) * n) // n_chunks
+
     # Capacity from a sample of rows (a stride over all of them), with slack; a chunk
     # that still runs out is refilled at exact offsets, so the guess only costs time.
     # At most 1 row in _SAMPLE_MIN_STEP is sampled: a small dense query (every row with
@@ -1558,17 +1563,18 @@ def start_pass(x, E, F, vertices, inflation):
     (`_Plan.start_pairs`): one grid, no fold of its own for either.
     """
     cand, d2 = np.zeros((0, 2), dtype=np.int64), np.inf
+    vertices = np.asarray(vertices, dtype=np.int64)
     loE, hiE = _box_arrays(x, x, E, inflation)
     if len(F):
         loF, hiF = _box_arrays(x, x, F, inflation)
         plan = _Plan(loE, hiE, E, loF, hiF, F, False, inflation) if len(E) else None
         if plan is not None:
-            owners = _start_owners(E, F, np.asarray(vertices, dtype=np.int64), x.shape[0])
+            owners = _start_owners(E, F, vertices, x.shape[0])
             if owners[3]:
                 return plan.start_pairs(x, owners, loE, hiE, loF, hiF, inflation)
             cand = plan.edge_face_pairs(x)
         if len(vertices):
-            TV = np.ascontiguousarray(np.asarray(vertices, dtype=np.int64)[:, None])
+            TV = np.ascontiguousarray(vertices[:, None])
             loV, hiV = _box_arrays(x, x, TV, inflation)
             vf = plan.with_rows(loV, hiV, TV, inflation) if plan is not None else None
             if vf is None:

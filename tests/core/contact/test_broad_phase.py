@@ -660,10 +660,9 @@ def _big_triangle_scene(rng):
     return np.ascontiguousarray(V), edges_from_faces(F), F.astype(np.int64), np.arange(len(V), dtype=np.int64)
 
 
-@pytest.mark.parametrize("threads", [1, 2])
 @pytest.mark.parametrize("refill", [False, True], ids=["fits", "refilled"])
 @pytest.mark.parametrize("kind", ["cloth", "folded-cloth", "far-from-origin", "big-triangle"])
-def test_fused_start_pass_is_the_separate_one(rng, monkeypatch, kind, refill, threads):
+def test_fused_start_pass_is_the_separate_one(rng, monkeypatch, kind, refill):
     # One pass over the edge-face box hits (adjacent ones too) folds the edge-edge and
     # vertex-face minima: the same candidates as the separate pass, the same minimum up
     # to the kernels' rounding, the same bits on 1 and 2 threads, in many chunks, with
@@ -681,7 +680,7 @@ def test_fused_start_pass_is_the_separate_one(rng, monkeypatch, kind, refill, th
         want_cand, want_d2 = _separate_start_pass(monkeypatch, x, E, F, Q, inflation)
         old = numba.get_num_threads()
         try:
-            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+            numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
             cand, d2 = bp.start_pass(x, E, F, Q, inflation)
             numba.set_num_threads(1)
             cand1, d21 = bp.start_pass(x, E, F, Q, inflation)
