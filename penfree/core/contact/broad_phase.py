@@ -52,7 +52,11 @@ mesh the certificate path's start pass is one visit: every edge-face box hit (ad
 ones too) folds the edge-edge and vertex-face pairs it owns (`_Plan.start_pairs`,
 `_start_owners`: each such pair is reached through exactly one hit, since a face's box
 holds its edges' and an edge's its vertices'), so neither fold builds a grid or visits
-rows of its own.
+rows of its own. Those pairs' boxes overlap, so the box bound below cannot skip them;
+a projection gap (`distance._ee_gap`, `_pt_gap`) can, and the certificate path starts
+the minimum at a cap twice the distance it asks about (`start_pass`), far below a
+mesh's own spacing, so almost no pair is evaluated (64K cloth: 1.13-1.15x for the
+whole certificate path, with its grid's cells cut along x as a fold's).
 
 Row scan (issue 13, A/B in one process against the previous version, same bits):
 the covering grid's emit-once rule compares stored lower cell corners (`ent_clo`, the
@@ -63,11 +67,12 @@ test is branch-free. Measured together: the scan alone 1.1-1.3x (64K yarn and cl
 
 Pruned folds. Before evaluating a pair, the min folds bound its squared distance
 from below by its boxes (`_gap_sq`: per-axis gaps of the primitives, the boxes less
-the inflation on both sides) and skip it when the bound, times ``1 - 1e-9``, exceeds
+the inflation on both sides; the fused start pass by a projection gap instead,
+`_fold_owned`) and skip it when the bound, times ``1 - 1e-9``, exceeds
 every minimum the pair could lower (the chunk's current minima of its vertices, or
 the chunk's global one). The result is bit for bit the unpruned one: such a pair's
 computed distance is above those minima, and min is exact. Rounding: the boxes and
-the gap arithmetic err by a few ulps of the largest box coordinate M, and the
+the gap arithmetic err by a few ulps (the projection gap ~100) of the largest box coordinate M, and the
 distance kernels by at most ~1e-12 relative plus ~1e-13 of the pair's extent
 (<= 2 M; `distance` module, tested against exact arithmetic); each gap is therefore
 reduced by 1e-9 M (`_PRUNE_SLACK`) before squaring, ~1e4x what the kernels need.
@@ -107,7 +112,7 @@ import numpy as np
 from numba import njit, prange
 
 from ...errors import InputError
-from .distance import _ee, _pe, _pt
+from .distance import _ee, _ee_gap, _pe, _pt, _pt_gap
 from .orient import segment_may_meet_triangle_at
 from ..parallel import parallel_kernel, use_parallel
 from ..topology import as_positions, as_topology, sort_segment
@@ -116,8 +121,8 @@ from ..topology import as_positions, as_topology, sort_segment
 #: "big": kept out of the grid and tested by brute force. Every row scans `reach`
 #: cell layers below its own along each axis, the largest span of the grid's boxes.
 _MAX_REACH = 2
-#: The min folds' plans (`_Plan(listing=False)`) split each cell along x, the axis of a
-#: dense table's runs, into this many: a row's cells along x are one contiguous run of
+#: The folds' plans (`_Plan(listing=False)`, `start_pass`'s too) split each cell along
+#: x, the axis of a dense table's runs, into this many: a row's cells along x are one contiguous run of
 #: entries whatever their number, so finer cells there cut the entries a row scans
 #: (its span plus the reach along x) without adding runs. Rows then scan up to
 #: `_SPLIT_MAX_REACH` layers along x, and fewer boxes stay out of the grid
@@ -766,14 +771,32 @@ _min_rows = parallel_kernel(_min_rows_py, "_bp_min_rows", _PARALLEL_MIN_ROWS)
 
 
 @njit(cache=True, inline="always")
-def _fold_owned(V, E, i, F, j, face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, inflation, dmin):
+def _gap_bound_sq(gap, slack):
+    # A projection gap (`distance._ee_gap`, `_pt_gap`) less the rounding slack, squared.
+    g = gap - slack
+    return g * g if g > 0.0 else 0.0
+
+
+@njit(cache=True, inline="always")
+def _fold_owned(V, E, i, F, j, face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, inflation, slack, dmin):
     """Fold into ``dmin[0]`` the edge-edge and vertex-face pairs that the box hit (edge i,
     face j) owns (`_start_owners`): each edge b > i of face j whose owner face is j, and
     each end v of edge i whose owner edge is i; a pair counts when its inflated boxes
-    overlap and it shares no vertex, as in `min_pair_sq`."""
+    overlap and it shares no vertex, as in `min_pair_sq`.
+
+    A pair is skipped when its projection gap (`distance._ee_gap`, `_pt_gap`, less
+    `slack`, squared, times `_PRUNE_REL`) exceeds ``dmin[0]``, as the min folds skip by
+    their box bound: its computed distance could not lower the minimum. The boxes of
+    these pairs overlap, so their box bound is 0; a start pass capped far below the
+    pairs' distances (`start_pass`) skips almost every pair this way."""
     for k in range(3):
         b = face_edges[j, k]  # -1 for a repeated vertex: never above i
         if b > i and owner_face[b] == j and _overlap(loE, hiE, i, loE, hiE, b) and not _adjacent(E, i, E, b):
+            p, q, r, s = E[i, 0], E[i, 1], E[b, 0], E[b, 1]
+            lb_sq = _gap_bound_sq(_ee_gap(V[p, 0], V[p, 1], V[p, 2], V[q, 0], V[q, 1], V[q, 2],
+                                          V[r, 0], V[r, 1], V[r, 2], V[s, 0], V[s, 1], V[s, 2]), slack)
+            if lb_sq * _PRUNE_REL > dmin[0]:
+                continue
             d = _pair_sq(V, E, i, E, b)
             if d < dmin[0]:
                 dmin[0] = d
@@ -787,6 +810,10 @@ def _fold_owned(V, E, i, F, j, face_edges, owner_face, owner_edge, loE, hiE, loF
                 meets = False
         if meets:
             p, q, r = F[j, 0], F[j, 1], F[j, 2]
+            lb_sq = _gap_bound_sq(_pt_gap(V[v, 0], V[v, 1], V[v, 2], V[p, 0], V[p, 1], V[p, 2],
+                                          V[q, 0], V[q, 1], V[q, 2], V[r, 0], V[r, 1], V[r, 2]), slack)
+            if lb_sq * _PRUNE_REL > dmin[0]:
+                continue
             d = _pt(V[v, 0], V[v, 1], V[v, 2], V[p, 0], V[p, 1], V[p, 2],
                     V[q, 0], V[q, 1], V[q, 2], V[r, 0], V[r, 1], V[r, 2])
             if d < dmin[0]:
@@ -796,7 +823,7 @@ def _fold_owned(V, E, i, F, j, face_edges, owner_face, owner_edge, loE, hiE, loF
 def _start_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
                      dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
                      starts, todo, bstart, blim, counts, J, full, V,
-                     face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, inflation, partial):
+                     face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, inflation, slack, partial):
     """`_fill_chunks` of MODE_FILL_EF for the rows A = edges, B = faces, fused with the
     edge-edge and vertex-face folds (`_Plan.start_pairs`): each row lists all its box
     hits (adjacent faces too) in a scratch, folds the pairs each hit owns into its
@@ -825,7 +852,8 @@ def _start_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
             kept = 0
             for q in range(n):
                 j = hits[q]
-                _fold_owned(V, TA, i, TB, j, face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, inflation, dmin)
+                _fold_owned(V, TA, i, TB, j, face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, inflation, slack,
+                            dmin)
                 if not _adjacent(TA, i, TB, j) and segment_may_meet_triangle_at(
                         V, TA[i, 0], TA[i, 1], TB[j, 0], TB[j, 1], TB[j, 2]):
                     if not over and pos + kept < lim:
@@ -1104,10 +1132,10 @@ class _Cells(NamedTuple):
 
 
 class _Plan:
-    """Boxes of both sets on one grid; see the module docstring. `listing` (self queries
-    only): the plan lists pairs (a covering grid) rather than folds minima (a
-    lower-corner grid, whose folds scan half the region); either layout answers every
-    query, only the speed differs."""
+    """Boxes of both sets on one grid; see the module docstring. `listing`: the plan
+    lists pairs rather than folds minima. A listed self query takes a covering grid (a
+    fold's lower-corner grid scans half the region); a fold's cells are cut along x
+    (`_RUN_SPLIT`). Every layout answers every query, only the speed differs."""
 
     def __init__(self, loA, hiA, TA, loB, hiB, TB, self_query, inflation=0.0, listing=True, cells="cube"):
         if cells not in CELL_SHAPES:
@@ -1126,8 +1154,8 @@ class _Plan:
         # The min folds' box bound (`_gap_sq`): boxes are the primitives' inflated by
         # `inflation` per side; the slack covers every rounding (module docstring).
         self.scaleB = float(np.abs(cornB).max())
-        scale = max(float(np.abs(cornA).max()), self.scaleB)
-        self.gap_off = 2.0 * float(inflation) - _PRUNE_SLACK * scale
+        self.slack = _PRUNE_SLACK * max(float(np.abs(cornA).max()), self.scaleB)
+        self.gap_off = 2.0 * float(inflation) - self.slack
         spans = np.maximum(cornA[1], cornB[1]) - origin
         span = float(spans.max())
         # Per-axis cell sizes: yarn segments are long along the yarn and thin
@@ -1235,7 +1263,8 @@ class _Plan:
         if np.any(topA >= self.dims):
             return None
         plan = copy.copy(self)
-        plan.gap_off = 2.0 * float(inflation) - _PRUNE_SLACK * max(float(np.abs(cornA).max()), self.scaleB)
+        plan.slack = _PRUNE_SLACK * max(float(np.abs(cornA).max()), self.scaleB)
+        plan.gap_off = 2.0 * float(inflation) - plan.slack
         plan._set_rows(loA, hiA, TA, cloA, chiA, _small_rows(cloA, chiA, self.reach, _MAX_DIM, _BIG_ROW_CELLS)[0])
         return plan
 
@@ -1269,9 +1298,10 @@ class _Plan:
             return np.zeros((0, 2), dtype=np.int64)
         return _pairs_pass(self._args(), self.loA.shape[0], MODE_FILL_EF, V)
 
-    def start_pairs(self, V, owners, loE, hiE, loF, hiF, inflation):
+    def start_pairs(self, V, owners, loE, hiE, loF, hiF, inflation, cap_sq=np.inf):
         """`edge_face_pairs` of rows A = edges E, B = faces F (this plan's), and the
-        smaller of the edge-edge and vertex-face minima of `start_pass`, in one pass.
+        smaller of `cap_sq` and the edge-edge and vertex-face minima of `start_pass`, in
+        one pass.
 
         `owners`: `_start_owners` of (E, F, vertices), ok; loE.. hiF: the boxes of E and
         F at V, inflated by `inflation`, in V's axes (this plan's are permuted).
@@ -1281,13 +1311,16 @@ class _Plan:
         holds v's). The vertex-face pairs are the same floats as `min_pair_sq`'s; an
         edge pair is evaluated as (smaller id, larger), where the self fold takes the
         row whose cell comes first, so the minimum may differ from that fold's in its
-        last bits (the distance kernels' rounding, `distance` module).
+        last bits (the distance kernels' rounding, `distance` module). Pairs whose
+        projection gap proves them above the chunk's minimum so far (which starts at
+        `cap_sq`) are not evaluated (`_fold_owned`).
         """
         face_edges, owner_face, owner_edge = owners[:3]
         n = self.loA.shape[0]
-        partial = np.full((_pair_chunks(n), 1), np.inf)
+        partial = np.full((_pair_chunks(n), 1), float(cap_sq))
         cand = _pairs_pass(self._args(), n, MODE_FILL_EF, V,
-                           (face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, float(inflation), partial))
+                           (face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, float(inflation), self.slack,
+                            partial))
         return cand, float(partial.min())
 
     def min_sq_into(self, V, partial, mode=MODE_MIN):
@@ -1530,7 +1563,7 @@ def min_pair_sq(x, TA, TB, inflation, self_query) -> float:
     return _global_min(_Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation, listing=False), x)
 
 
-def start_pass(x, E, F, vertices, inflation):
+def start_pass(x, E, F, vertices, inflation, cap_sq=np.inf):
     """The certificate path's questions about a static state, on two grids.
 
     Parameters
@@ -1542,6 +1575,11 @@ def start_pass(x, E, F, vertices, inflation):
         Validated index arrays into x.
     inflation : float >= 0
         Box inflation of every primitive, as in `min_pair_sq`.
+    cap_sq : float, optional
+        The folds start their minimum here (as `per_vertex_separation` starts at its
+        radius), so pairs provably farther apart are never evaluated. A caller asking
+        whether every pair is more than some distance apart passes a cap above its
+        square: the answer is the same, and almost no pair is evaluated.
 
     Returns
     -------
@@ -1549,8 +1587,9 @@ def start_pass(x, E, F, vertices, inflation):
         A superset of ``edge_face_candidates(x, E, F)`` (the boxes are inflated), rows
         (e, f) sorted lexicographically, for the exact test to decide.
     d2 : float
-        The smaller of ``min_pair_sq(x, E, E, inflation, True)`` and ``min_pair_sq(x,
-        vertices[:, None], F, inflation, False)``, the same floats (inf for none).
+        The smallest of `cap_sq`, ``min_pair_sq(x, E, E, inflation, True)`` and
+        ``min_pair_sq(x, vertices[:, None], F, inflation, False)``, the same floats up
+        to the distance kernels' rounding (inf for none and no cap).
 
     Notes
     -----
@@ -1560,18 +1599,20 @@ def start_pass(x, E, F, vertices, inflation):
     and three box arrays instead of three and five (~10 ms of a 64K cloth's ~0.1 s).
     Where every edge is a face's and every vertex an edge's (a triangle mesh,
     `_start_owners`), one pass over the edge-face box hits also folds both minima
-    (`_Plan.start_pairs`): one grid, no fold of its own for either.
+    (`_Plan.start_pairs`): one grid, no fold of its own for either. The faces' grid is
+    a fold's (``listing=False``: cells cut along x, `_RUN_SPLIT`): its rows list few
+    pairs and fold many (64K cloth, alternating in one process: 1.07-1.08x).
     """
     cand, d2 = np.zeros((0, 2), dtype=np.int64), np.inf
     vertices = np.asarray(vertices, dtype=np.int64)
     loE, hiE = _box_arrays(x, x, E, inflation)
     if len(F):
         loF, hiF = _box_arrays(x, x, F, inflation)
-        plan = _Plan(loE, hiE, E, loF, hiF, F, False, inflation) if len(E) else None
+        plan = _Plan(loE, hiE, E, loF, hiF, F, False, inflation, listing=False) if len(E) else None
         if plan is not None:
             owners = _start_owners(E, F, vertices, x.shape[0])
             if owners[3]:
-                return plan.start_pairs(x, owners, loE, hiE, loF, hiF, inflation)
+                return plan.start_pairs(x, owners, loE, hiE, loF, hiF, inflation, cap_sq)
             cand = plan.edge_face_pairs(x)
         if len(vertices):
             TV = np.ascontiguousarray(vertices[:, None])
@@ -1579,14 +1620,14 @@ def start_pass(x, E, F, vertices, inflation):
             vf = plan.with_rows(loV, hiV, TV, inflation) if plan is not None else None
             if vf is None:
                 vf = _Plan(loV, hiV, TV, loF, hiF, F, False, inflation)
-            d2 = _global_min(vf, x)
+            d2 = _global_min(vf, x, cap_sq)
     if len(E) > 1:
-        d2 = min(d2, _global_min(_Plan(loE, hiE, E, loE, hiE, E, True, inflation, listing=False), x))
-    return cand, d2
+        d2 = min(d2, _global_min(_Plan(loE, hiE, E, loE, hiE, E, True, inflation, listing=False), x, cap_sq))
+    return cand, min(d2, float(cap_sq))
 
 
-def _global_min(plan, x):
-    partial = np.full((_GLOBAL_MIN_CHUNKS, 1), np.inf)
+def _global_min(plan, x, cap_sq=np.inf):
+    partial = np.full((_GLOBAL_MIN_CHUNKS, 1), float(cap_sq))
     plan.min_sq_into(x, partial, MODE_GLOBAL_MIN)
     return float(partial.min())
 

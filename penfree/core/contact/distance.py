@@ -15,6 +15,9 @@ input needs no special branch that could be wrong:
   the plane when the projection lies inside the triangle; a degenerate
   (zero-area) triangle is the union of its edges.
 
+Two gap bounds (`_ee_gap`, `_pt_gap`) give a cheap lower bound of a pair's
+distance from one projection, for folds that skip pairs far from a minimum.
+
 The scalar kernels take 1-D float64 arrays of length 3 (rows of a (N, 3)
 array, e.g. ``V[i]``), return the SQUARED distance and allocate nothing.
 No fastmath: the arithmetic order is the written one.
@@ -186,6 +189,73 @@ def _pt(px, py, pz, t0x, t0y, t0z, t1x, t1y, t1z, t2x, t2y, t2z):
         if d < best:
             best = d
     return best
+
+
+#: A projection direction shorter than sqrt(_TINY_SQ) or longer than sqrt(_HUGE_SQ) is
+#: not used by the gap bounds (their products could underflow or overflow, where the
+#: rounding bound of `_ee_gap` does not hold): the bound is then 0.
+_TINY_SQ = 1e-200
+_HUGE_SQ = 1e200
+
+
+@njit(cache=True, inline="always")
+def _gap_over(num, nn):
+    # The gap num / |n| along a direction n with |n|^2 = nn (0.0 where it proves nothing).
+    if num > 0.0 and nn > _TINY_SQ and nn < _HUGE_SQ:
+        return num / np.sqrt(nn)
+    return 0.0
+
+
+@njit(cache=True, inline="always")
+def _ee_gap(ea0x, ea0y, ea0z, ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z):
+    """A lower bound of the distance of two closed segments (0.0 where it proves
+    nothing): the gap between their projections onto a line, which no pair of their
+    points can cross. Onto w = 2 (mid_b - mid_a) a segment projects to its midpoint's
+    projection plus or minus |w . d| / 2 (d its direction), so the gap is
+    (w . w - |w . da| - |w . db|) / (2 |w|); and the same onto n = w |da|^2 - (w . da)
+    da, the part of w normal to segment a (n . w >= 0), which separates parallel
+    segments side by side along w. The larger of the two is returned.
+
+    Any direction gives a valid bound, so only the gap's own arithmetic errs: each
+    term of the numerator by at most ~30 ulps of |n| M (M the largest coordinate; the
+    differences of the coordinates and the dot products), which the division by |n|
+    cancels, so the computed gap exceeds the exact one by at most ~100 ulps of M: far
+    below the 1e-9 M slack its callers subtract (`broad_phase._fold_owned`).
+    """
+    wx = (eb0x + eb1x) - (ea0x + ea1x)
+    wy = (eb0y + eb1y) - (ea0y + ea1y)
+    wz = (eb0z + eb1z) - (ea0z + ea1z)
+    ax = ea1x - ea0x
+    ay = ea1y - ea0y
+    az = ea1z - ea0z
+    bx = eb1x - eb0x
+    by = eb1y - eb0y
+    bz = eb1z - eb0z
+    ww = wx * wx + wy * wy + wz * wz
+    g = _gap_over(0.5 * (ww - abs(wx * ax + wy * ay + wz * az) - abs(wx * bx + wy * by + wz * bz)), ww)
+    # Both directions, the larger gap: parallel diagonals of a sheet offset along
+    # themselves have a rounding-sized gap along w and their spacing along n.
+    aa = ax * ax + ay * ay + az * az
+    wa = wx * ax + wy * ay + wz * az
+    nx = wx * aa - wa * ax
+    ny = wy * aa - wa * ay
+    nz = wz * aa - wa * az
+    num = 0.5 * ((nx * wx + ny * wy + nz * wz) - abs(nx * ax + ny * ay + nz * az) - abs(nx * bx + ny * by + nz * bz))
+    return max(g, _gap_over(num, nx * nx + ny * ny + nz * nz))
+
+
+@njit(cache=True, inline="always")
+def _pt_gap(px, py, pz, t0x, t0y, t0z, t1x, t1y, t1z, t2x, t2y, t2z):
+    """A lower bound of the distance from a point to a closed triangle (0.0 where it
+    proves nothing): the gap between their projections onto w = 3 (centroid - p),
+    ``min_k (t_k - p) . w / |w|`` (rounding as in `_ee_gap`)."""
+    wx = (t0x + t1x + t2x) - 3.0 * px
+    wy = (t0y + t1y + t2y) - 3.0 * py
+    wz = (t0z + t1z + t2z) - 3.0 * pz
+    m = min((t0x - px) * wx + (t0y - py) * wy + (t0z - pz) * wz,
+            (t1x - px) * wx + (t1y - py) * wy + (t1z - pz) * wz,
+            (t2x - px) * wx + (t2y - py) * wy + (t2z - pz) * wz)
+    return _gap_over(m, wx * wx + wy * wy + wz * wz)
 
 
 @njit(cache=True)

@@ -36,12 +36,15 @@ def _start_pass(col, scene, g):
     True when every vertex-face and edge-edge pair is proven more than `g` apart: the
     computed distances of the pairs whose boxes come within g (folded, no pair stored,
     no CCD; `broad_phase.start_pass`) all above `reuse.apart_sq` (far above the distance
-    kernels' rounding). False means "maybe within g": the static CCD then decides."""
+    kernels' rounding). False means "maybe within g": the static CCD then decides. The
+    folds start at twice that distance (`start_pass`'s cap): pairs provably farther
+    apart are not evaluated, and the answer is the uncapped one."""
     x = scene.x_t0
-    cand, d2 = start_pass(x, scene.E, scene.F, scene.V, _inflation(g, x))
+    apart = apart_sq(g, x)
+    cand, d2 = start_pass(x, scene.E, scene.F, scene.V, _inflation(g, x), cap_sq=4.0 * apart)
     if len(cand):
         edge_face_exact(col, "ef", x, scene.E, scene.F, cand[:, 0], cand[:, 1])
-    return d2 > apart_sq(g, x)
+    return d2 > apart
 
 
 def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0.0,

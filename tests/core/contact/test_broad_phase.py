@@ -641,12 +641,12 @@ def test_start_pass_is_the_three_queries(rng, kind, inflation):
         assert max(ee, vf) < 0.011 ** 2
 
 
-def _separate_start_pass(monkeypatch, x, E, F, Q, inflation):
+def _separate_start_pass(monkeypatch, x, E, F, Q, inflation, cap_sq=np.inf):
     """`start_pass` through its separate folds (as for a mesh that is not all triangles)."""
     owners = bp._start_owners
     with monkeypatch.context() as m:
         m.setattr(bp, "_start_owners", lambda *a: owners(*a)[:3] + (False,))
-        return bp.start_pass(x, E, F, Q, inflation)
+        return bp.start_pass(x, E, F, Q, inflation, cap_sq=cap_sq)
 
 
 def _big_triangle_scene(rng):
@@ -728,6 +728,29 @@ def test_fused_start_pass_minimum_is_exact(rng, kind, inflation):
             assert abs(got - want) <= 1e-12 * max(want, 1e-300)
     if inflation > 0:
         assert np.isfinite(want_ee) and np.isfinite(want_vf)
+
+
+@pytest.mark.parametrize("kind", ["cloth", "folded-cloth", "far-from-origin", "free-vertex-outside"])
+def test_capped_start_pass_is_the_minimum_or_the_cap(rng, monkeypatch, kind):
+    # A cap lets the folds skip the pairs provably above their minimum so far, which
+    # starts at the cap (projection gaps in the fused pass, box gaps in the separate
+    # folds): the result is min(cap, the uncapped minimum) bit for bit and the
+    # candidates are unchanged, on both paths; caps far below the minimum (as the
+    # certificate path's), at it, just above it and above it.
+    x, E, F, Q = _start_scene(kind, rng)
+    for inflation in (0.0, 1e-3):
+        for separate in (False, True):
+            def start(cap_sq):
+                if separate:
+                    return _separate_start_pass(monkeypatch, x, E, F, Q, inflation, cap_sq)
+                return bp.start_pass(x, E, F, Q, inflation, cap_sq=cap_sq)
+
+            cand, d2 = start(np.inf)
+            assert 0.0 < d2 < np.inf
+            for cap in (0.0, 1e-12, 0.25 * d2, d2, np.nextafter(d2, np.inf), 4.0 * d2):
+                got_cand, got = start(cap)
+                np.testing.assert_array_equal(got_cand, cand)
+                assert got == min(cap, d2), (separate, inflation, cap)
 
 
 def test_start_owners_of_a_triangle_mesh_and_what_falls_back(rng):

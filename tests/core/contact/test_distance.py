@@ -16,6 +16,8 @@ from hypothesis import strategies as st
 from numba import njit
 
 from penfree.core.contact.distance import (
+    _ee_gap,
+    _pt_gap,
     edge_edge_distance,
     edge_edge_sq,
     point_edge_distance,
@@ -250,3 +252,87 @@ def test_input_errors():
     with pytest.raises(InputError, match="finite"):
         point_triangle_distance(np.full((1, 3), np.nan), np.zeros((1, 3)), np.zeros((1, 3)),
                                 np.zeros((1, 3)))
+
+
+# --- projection gap bounds ------------------------------------------------------
+
+# The bounds may exceed the exact distance by their own rounding only: ~100 ulps of the
+# largest coordinate (`distance._ee_gap`); the folds subtract 1e-9 of it.
+GAP_SLACK_REL = 1e-13
+
+
+@njit(cache=True)
+def _gaps(P):
+    # (ee, pt) gap bounds of rows (a0, a1, b0, b1): segments a0a1 / b0b1, point b1 /
+    # triangle (a0, a1, b0), as `test_random_against_exact` pairs them.
+    out = np.empty((P.shape[0], 2))
+    for k in range(P.shape[0]):
+        a0, a1, b0, b1 = P[k, 0], P[k, 1], P[k, 2], P[k, 3]
+        out[k, 0] = _ee_gap(a0[0], a0[1], a0[2], a1[0], a1[1], a1[2], b0[0], b0[1], b0[2], b1[0], b1[1], b1[2])
+        out[k, 1] = _pt_gap(b1[0], b1[1], b1[2], a0[0], a0[1], a0[2], a1[0], a1[1], a1[2], b0[0], b0[1], b0[2])
+    return out
+
+
+def _assert_below(gap, d2_exact, pts):
+    # gap - slack <= exact distance, compared in exact arithmetic (squares of non-negatives)
+    g = Fraction(float(gap)) - Fraction(GAP_SLACK_REL * float(np.abs(pts).max()))
+    assert gap >= 0.0
+    assert g <= 0 or g * g <= d2_exact, (gap, float(d2_exact) ** 0.5, pts)
+
+
+def _gap_rows(cases):
+    return np.array([[c for c in case] for case in cases], dtype=np.float64)
+
+
+def test_gap_bounds_below_the_exact_distance(rng):
+    # Random pairs (near-parallel, near-touching, far from the origin among them) and
+    # the named cases, against the exact distance; far apart pairs get a positive bound.
+    pts = np.concatenate([_random_pairs(rng, 300, 4), _random_pairs(rng, 100, 4) * 1e-3 + 1e6,
+                          _gap_rows(EE_CASES.values()),
+                          _gap_rows([[t0, t1, t2, p] for p, t0, t1, t2 in PT_CASES.values()])])
+    gaps = _gaps(pts)
+    for q in range(pts.shape[0]):
+        a0, a1, b0, b1 = pts[q]
+        _assert_below(gaps[q, 0], ee_exact(a0, a1, b0, b1), pts[q])
+        _assert_below(gaps[q, 1], pt_exact(b1, a0, a1, b0), pts[q])
+    assert (gaps > 0).mean() > 0.2
+
+
+@pytest.mark.parametrize("offset", [0.0, 1e6], ids=["near-origin", "far-from-origin"])
+def test_gap_bounds_of_a_sheets_neighbours(offset):
+    # The pairs a start pass meets on a flat triangulated grid (spacing 1): parallel edges
+    # across a square (along the midpoints' line), parallel diagonals side by side (only
+    # the part normal to one segment separates them, also when they are offset along
+    # themselves), collinear edges, a vertex beside a
+    # triangle; each bound is positive, at most the exact distance, and tight where the
+    # gap direction is the closest points' (parallel edges, the collinear gap).
+    o = np.full(3, offset)
+    rows = {
+        "across-a-square": ([0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], 1.0),
+        "parallel-diagonals": ([0, 1, 0], [1, 0, 0], [1, 1, 0], [2, 0, 0], 0.5 ** 0.5),
+        "collinear": ([0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0], 1.0),
+        # along w a gap of 5e-4 (a small positive one must not end the search)
+        "diagonals-offset-along-themselves": ([0, 0, 0], [0.999, -0.999, 0.04], [0, 1, -0.04], [1, 0, 0], None),
+        "diagonal-and-edge": ([0, 0, 0], [1, 1, 0], [1, 0, 0], [2, 0, 0], None),
+    }
+    P = np.array([[a, b, c, d] for a, b, c, d, _ in rows.values()], dtype=np.float64) + o
+    gaps = _gaps(P)
+    for q, (name, row) in enumerate(rows.items()):
+        _assert_below(gaps[q, 0], ee_exact(*P[q]), P[q])
+        assert gaps[q, 0] > 0.3, name
+        if row[4] is not None:
+            assert gaps[q, 0] == pytest.approx(row[4], rel=1e-9, abs=1e-9 * offset), name
+    tri = np.array([[[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.1]]], dtype=np.float64) + o  # the square's 4th corner
+    g = _gaps(tri)[0, 1]
+    _assert_below(g, pt_exact(tri[0, 3], tri[0, 0], tri[0, 1], tri[0, 2]), tri[0])
+    assert g > 0.3
+
+
+def test_gap_bounds_prove_nothing_out_of_range():
+    # Directions too short or too long for the rounding bound: the bounds are 0, never
+    # inf or NaN (coordinates ~1e-120 square to below 1e-200, ~1e120 to above 1e200).
+    base = np.array([[[0, 0, 0], [1, 0, 0], [0, 3, 0], [1, 3, 0]]], dtype=np.float64)
+    for scale in (1e-120, 1e120):
+        g = _gaps(base * scale)
+        assert np.all(g == 0.0), scale
+    assert np.all(_gaps(base) > 0.0)
