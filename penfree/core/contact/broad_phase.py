@@ -72,8 +72,8 @@ the inflation on both sides; the fused start pass by a projection gap instead,
 every minimum the pair could lower (the chunk's current minima of its vertices, or
 the chunk's global one). The result is bit for bit the unpruned one: such a pair's
 computed distance is above those minima, and min is exact. Rounding: the boxes and
-the gap arithmetic err by a few ulps (the projection gap ~100) of the largest box coordinate M, and the
-distance kernels by at most ~1e-12 relative plus ~1e-13 of the pair's extent
+the gap arithmetic err by a few ulps (the projection gap by ~100) of the largest box
+coordinate M, and the distance kernels by at most ~1e-12 relative plus ~1e-13 of the pair's extent
 (<= 2 M; `distance` module, tested against exact arithmetic); each gap is therefore
 reduced by 1e-9 M (`_PRUNE_SLACK`) before squaring, ~1e4x what the kernels need.
 `per_vertex_separation` starts its minima at the cap radius**2 (not inf), so pairs
@@ -122,8 +122,8 @@ from ..topology import as_positions, as_topology, sort_segment
 #: cell layers below its own along each axis, the largest span of the grid's boxes.
 _MAX_REACH = 2
 #: The folds' plans (`_Plan(listing=False)`, `start_pass`'s too) split each cell along
-#: x, the axis of a dense table's runs, into this many: a row's cells along x are one contiguous run of
-#: entries whatever their number, so finer cells there cut the entries a row scans
+#: x, the axis of a dense table's runs, into this many: a row's cells along x are one
+#: contiguous run of entries whatever their number, so finer cells there cut the entries a row scans
 #: (its span plus the reach along x) without adding runs. Rows then scan up to
 #: `_SPLIT_MAX_REACH` layers along x, and fewer boxes stay out of the grid
 #: (`_SPLIT_BIG_SHARE` of the brute-force budget). A table that would be hashed, whose
@@ -548,14 +548,21 @@ def _record(mode, i, j, TA, TB, J, pos, lim, V, dmin, lb_sq):
         if pos < lim:  # beyond `lim` a full chunk only counts (see _pairs_pass)
             J[pos] = j
     elif mode == MODE_GLOBAL_MIN:
-        if lb_sq * _PRUNE_REL > dmin[0]:
-            return 1  # the computed distance is above the bound: it cannot lower dmin
-        d = _pair_sq(V, TA, i, TB, j)
-        if d < dmin[0]:
-            dmin[0] = d
+        _fold_global_min(V, TA, i, TB, j, dmin, lb_sq)
     elif mode == MODE_MIN:
         fold_pair_min(V, TA, i, TB, j, dmin, lb_sq)
     return 1
+
+
+@njit(cache=True, inline="always")
+def _fold_global_min(V, TA, i, TB, j, dmin, lb_sq):
+    # Lower ``dmin[0]`` by the pair's squared distance, unless its lower bound `lb_sq`
+    # (times `_PRUNE_REL`) proves that the computed distance cannot lower it.
+    if lb_sq * _PRUNE_REL > dmin[0]:
+        return
+    d = _pair_sq(V, TA, i, TB, j)
+    if d < dmin[0]:
+        dmin[0] = d
 
 
 @njit(cache=True, inline="always")
@@ -793,13 +800,9 @@ def _fold_owned(V, E, i, F, j, face_edges, owner_face, owner_edge, loE, hiE, loF
         b = face_edges[j, k]  # -1 for a repeated vertex: never above i
         if b > i and owner_face[b] == j and _overlap(loE, hiE, i, loE, hiE, b) and not _adjacent(E, i, E, b):
             p, q, r, s = E[i, 0], E[i, 1], E[b, 0], E[b, 1]
-            lb_sq = _gap_bound_sq(_ee_gap(V[p, 0], V[p, 1], V[p, 2], V[q, 0], V[q, 1], V[q, 2],
-                                          V[r, 0], V[r, 1], V[r, 2], V[s, 0], V[s, 1], V[s, 2]), slack)
-            if lb_sq * _PRUNE_REL > dmin[0]:
-                continue
-            d = _pair_sq(V, E, i, E, b)
-            if d < dmin[0]:
-                dmin[0] = d
+            _fold_global_min(V, E, i, E, b, dmin, _gap_bound_sq(_ee_gap(
+                V[p, 0], V[p, 1], V[p, 2], V[q, 0], V[q, 1], V[q, 2],
+                V[r, 0], V[r, 1], V[r, 2], V[s, 0], V[s, 1], V[s, 2]), slack))
     for a in range(2):
         v = E[i, a]
         if owner_edge[v] != i or v == F[j, 0] or v == F[j, 1] or v == F[j, 2]:
