@@ -5,3 +5,11 @@ Base modules (`topology`, `polynomial`, `describe`) serve every stage. The stage
 `trust` also imports `contact`. `pipeline` wires them, and no stage imports it
 (tests/test_architecture.py checks all of this).
 """
+
+from pathlib import Path
+
+from penfree.core import jit_cache
+
+# Before any kernel is decorated: a cached kernel is stale when any penfree module
+# it can reach changes, not only its own file.
+jit_cache.install(Path(__file__).resolve().parents[1])

@@ -623,7 +623,8 @@ def _scan(mode, i, box, TA, TB, bits, key, ent_key, ent_id, ent_box, ent_clo, co
             # Covering grid: emit only from the cell holding the intersection's lower
             # corner. _cell is monotone, so cell(max(a, b)) = max(cell(a), cell(b)), both
             # cells computed by the same formula (cloA, ent_clo).
-            if ent_clo.shape[0] and (max(corner[0], ent_clo[e, 0]) != cell[0] or max(corner[1], ent_clo[e, 1]) != cell[1]
+            if ent_clo.shape[0] and (max(corner[0], ent_clo[e, 0]) != cell[0]
+                                     or max(corner[1], ent_clo[e, 1]) != cell[1]
                                      or max(corner[2], ent_clo[e, 2]) != cell[2]):
                 continue
             j = ent_id[e]
@@ -670,8 +671,8 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, 
         j0 = i + 1 if self_query else 0
         for j in range(j0, loB.shape[0]):
             if _overlap(loA, hiA, i, loB, hiB, j) and (mode == MODE_FILL_ALL or not _adjacent(TA, i, TB, j)):
-                n += 1 if mode == MODE_COUNT else _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin,
-                                                                    _big_gap_sq(loA, hiA, i, loB, hiB, j, mode, gap_off))
+                gap_sq = _big_gap_sq(loA, hiA, i, loB, hiB, j, mode, gap_off)
+                n += 1 if mode == MODE_COUNT else _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin, gap_sq)
         return n
     box = (loA[i, 0], loA[i, 1], loA[i, 2], hiA[i, 0], hiA[i, 1], hiA[i, 2])
     corner = (cloA[i, 0], cloA[i, 1], cloA[i, 2])
@@ -888,7 +889,8 @@ def _start_owners(E, F, vertices, n):
     owner_edge = np.full(n, -1, dtype=np.int64)
     first = np.zeros(n + 1, dtype=np.int64)  # the rows of E with E[r, 0] = v: first[v]..first[v + 1]
     for r in range(M):
-        if E[r, 0] >= E[r, 1] or (r > 0 and (E[r - 1, 0] > E[r, 0] or (E[r - 1, 0] == E[r, 0] and E[r - 1, 1] >= E[r, 1]))):
+        after_last = r == 0 or E[r - 1, 0] < E[r, 0] or (E[r - 1, 0] == E[r, 0] and E[r - 1, 1] < E[r, 1])
+        if E[r, 0] >= E[r, 1] or not after_last:
             return face_edges, owner_face, owner_edge, False
         first[E[r, 0] + 1] += 1
     for v in range(n):
