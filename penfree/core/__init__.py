@@ -1,8 +1,8 @@
 """The numeric pipeline, one subpackage per stage (see ARCHITECTURE.md).
 
-Base modules (`topology`, `polynomial`, `describe`) serve every stage. The stages:
-`fit` and `contact` import only the base; `verify` also imports `fit` and `contact`;
-`trust` also imports `contact`. `pipeline` wires them, and no stage imports it
+Base modules (`topology`, `polynomial`, `describe`, `parallel`, `memory`, `jit_cache`)
+serve every stage. The stages: `fit` and `contact` import only the base; `verify` also
+imports `fit` and `contact`; `trust` also imports `contact`. `pipeline` wires them, and no stage imports it
 (tests/test_architecture.py checks all of this).
 """
 
