@@ -2,8 +2,8 @@
 
 Base modules (`topology`, `polynomial`, `describe`, `parallel`, `memory`, `jit_cache`)
 serve every stage. The stages: `fit` and `contact` import only the base; `verify` also
-imports `fit` and `contact`; `trust` also imports `contact`. `pipeline` wires them, and no stage imports it
-(tests/test_architecture.py checks all of this).
+imports `fit` and `contact`; `trust` also imports `contact`. `pipeline` wires them, and
+no stage imports it (tests/test_architecture.py checks all of this).
 """
 
 from pathlib import Path
