@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit, prange
 
 from ... import constants as K
-from .kernels import cache_variant
+from ..parallel import named
 
 
 def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, unbounded, r, n_chunks):
@@ -84,8 +84,8 @@ def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, un
     return res
 
 
-_predict_serial = njit(cache=True, error_model="numpy")(cache_variant(_predict_py, "_predict_serial"))
-_predict_parallel = njit(cache=True, parallel=True, error_model="numpy")(cache_variant(_predict_py, "_predict_parallel"))
+_predict_serial = njit(cache=True, error_model="numpy")(named(_predict_py, "_predict_serial"))
+_predict_parallel = njit(cache=True, parallel=True, error_model="numpy")(named(_predict_py, "_predict_parallel"))
 
 
 def predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r, unbounded=True):

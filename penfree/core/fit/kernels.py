@@ -10,12 +10,11 @@ negative-index wraparound keep LLVM from vectorising (measured 2-4x slower).
 
 from __future__ import annotations
 
-import types
-
 import numpy as np
 from numba import njit, prange
 
 from ... import constants as K
+from ..parallel import named
 
 #: Layout of the moment vector the kernel returns (offsets into it).
 _W, _SP, _SD, _SPP, _SDP, _SDD, _SW2, _NMOM = 0, 1, 4, 7, 13, 22, 23, 24
@@ -108,26 +107,17 @@ def _moments_py(x_prev, x, w, n_chunks):
     return tot
 
 
-# The same source compiled twice: a parallel region costs tens of microseconds
-# (far more on a loaded machine), so small inputs run the chunks serially. The
-# choice depends on N only, never on the thread count.
-def cache_variant(fn, name):
-    # Numba's on-disk cache is keyed by the function's qualified name; give
-    # each compiled variant its own, so the serial and parallel builds never
-    # share a cache entry.
-    f = types.FunctionType(fn.__code__, fn.__globals__, name, fn.__defaults__, fn.__closure__)
-    f.__qualname__ = name
-    return f
-
-
+# The same source compiled twice, each build under its own name (`parallel.named`): a
+# parallel region costs tens of microseconds (far more on a loaded machine), so small
+# inputs run the chunks serially. The choice depends on N only, never on the thread count.
 #: Reassociation lets LLVM vectorise the per-chunk sums (about 2x); it is fixed
 #: at compile time, so results still do not depend on the thread count. No
 #: flag that assumes finite values: NaN/Inf inputs must still poison the sums.
 _FIT_FASTMATH = {"reassoc", "contract"}
 
-_moments_serial = njit(cache=True, fastmath=_FIT_FASTMATH)(cache_variant(_moments_py, "_moments_serial"))
+_moments_serial = njit(cache=True, fastmath=_FIT_FASTMATH)(named(_moments_py, "_moments_serial"))
 _moments_parallel = njit(cache=True, parallel=True, fastmath=_FIT_FASTMATH)(
-    cache_variant(_moments_py, "_moments_parallel"))
+    named(_moments_py, "_moments_parallel"))
 
 
 def _moments_kernel(x_prev, x, w, n_chunks):
@@ -284,8 +274,8 @@ def _apply_py(x_prev, x, D, u, c, out, evaluate, out32, n_chunks):
     return res
 
 
-_apply_serial = njit(cache=True, fastmath=_FIT_FASTMATH)(cache_variant(_apply_py, "_apply_serial"))
-_apply_parallel = njit(cache=True, parallel=True, fastmath=_FIT_FASTMATH)(cache_variant(_apply_py, "_apply_parallel"))
+_apply_serial = njit(cache=True, fastmath=_FIT_FASTMATH)(named(_apply_py, "_apply_serial"))
+_apply_parallel = njit(cache=True, parallel=True, fastmath=_FIT_FASTMATH)(named(_apply_py, "_apply_parallel"))
 
 
 def _apply_kernel(x_prev, x, D, u, c, out, evaluate, n_chunks):
