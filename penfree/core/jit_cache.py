@@ -84,11 +84,6 @@ def _signature(path: Path) -> tuple[Path, int, int]:
     return (path, st.st_mtime_ns, st.st_size)
 
 
-def _read(path: Path) -> tuple[bytes, tuple]:
-    _, mtime_ns, size = _signature(path)
-    return _parsed(str(path), mtime_ns, size)
-
-
 def _imported_files(path: Path, root: Path) -> tuple[Path, ...]:
     """The files under `root` whose names `path` imports (memoised per version of `path`).
 
@@ -143,11 +138,12 @@ def source_stamp(path: Path, root: Path) -> str:
     if known is not None and all(_signature(sig[0]) == sig for sig in known[0]):
         return known[1]
     root = Path(root).resolve()
-    deps = dependency_files(path, root)
+    # One stat per file: the memo records the versions whose contents were hashed.
+    sigs = tuple(_signature(dep) for dep in dependency_files(path, root))
     h = hashlib.sha256()
-    for dep in deps:
-        h.update(dep.relative_to(root).as_posix().encode() + b"\0" + _read(dep)[0])
-    _STAMPS[key] = (tuple(_signature(dep) for dep in deps), h.hexdigest())
+    for dep, mtime_ns, size in sigs:
+        h.update(dep.relative_to(root).as_posix().encode() + b"\0" + _parsed(str(dep), mtime_ns, size)[0])
+    _STAMPS[key] = (sigs, h.hexdigest())
     return _STAMPS[key][1]
 
 
