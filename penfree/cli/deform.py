@@ -6,9 +6,9 @@ import time
 import click
 import numpy as np
 
-from .._version import __version__
 from ..constants import MODELS, PROJECTIONS
 from ..errors import InputError
+from ..sequence import SCALE_MAX
 from .options import (
     FiniteFloat, Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames,
     contact_radius_option, scaleout_options, set_threads, thickness_option, threads_option, usd_options,
@@ -47,7 +47,7 @@ from .options import (
 @click.option("--client-model", type=click.Choice(["isotropic", "planar"]), default=None,
               help="With --model auto: choose by the predicted CD passes of an OGC client with this truncation "
                    "(radius rule step; penfree's own replay, no ipctk needed).")
-@click.option("--dhat", type=FiniteFloat(min=0.0, min_open=True), default=None,
+@click.option("--dhat", type=FiniteFloat(min=0.0, min_open=True, max=SCALE_MAX), default=None,
               help="With --client-model: contact offset [default: the contact radius, else the thickness].")
 @usd_options
 @json_option
@@ -60,7 +60,7 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
     Each step s moves frame s toward the prediction 2 x^s - x^(s-1); the straight path
     to the deformed state is certified penetration-free (exact test) before it is written.
     """
-    from ..core.pipeline.deform import deform_sequence, deform_stats, summarize_steps
+    from ..core.pipeline.deform import deform_sequence, deform_stats, result_attrs, summarize_steps
     from ..formats import check_outputs, input_files, read_sequence
     from ..formats.result import write_result
     from ..scaleout import is_scaleout
@@ -112,12 +112,9 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
         with Progress(len(result.steps["frame"]), "stats") as bar:
             groups["stats"] = deform_stats(seq, result.steps, thickness=thickness, contact_radius=contact_radius,
                                            progress=bar)
-    attrs = {
-        "penfree_version": __version__,
-        "input": os.path.basename(input_path),
-        "options": dict(result.options, weights=weights_name or ("weights" if seq.weights is not None else None),
-                        **({"client_model": client_model} if client_model else {})),
-    }
+    attrs = result_attrs(input_path, result.options,
+                         weights=weights_name or ("weights" if seq.weights is not None else None),
+                         **({"client_model": client_model} if client_model else {}))
     write_result(output_path, seq, result.steps, attrs, groups=groups, overwrite=overwrite)
     elapsed = time.perf_counter() - t0
 

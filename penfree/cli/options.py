@@ -7,6 +7,7 @@ import sys
 import click
 
 from ..errors import InputError
+from ..sequence import SCALE_MAX
 
 
 def parse_frames(text):
@@ -54,12 +55,15 @@ class FiniteFloat(click.FloatRange):
         return v
 
 
+#: A distance option: in the range a file's distance attributes are held to (`penfree.sequence.SCALE_MAX`).
+DISTANCE = FiniteFloat(min=0.0, max=SCALE_MAX)
+
 thickness_option = click.option(
-    "--thickness", type=FiniteFloat(min=0.0), default=None,
+    "--thickness", type=DISTANCE, default=None,
     help="Hard minimum separation guaranteed / checked (default: the file's thickness attribute, else 0).",
 )
 contact_radius_option = click.option(
-    "--contact-radius", "contact_radius", type=FiniteFloat(min=0.0), default=None,
+    "--contact-radius", "contact_radius", type=DISTANCE, default=None,
     help="The simulator's contact distance; sizes the trust-region query radius only, never a separation "
          "(default: the file's contact_radius attribute, else 0).",
 )

@@ -6,6 +6,7 @@ import click
 
 from ..constants import DEFAULT_CD_SHARE, DEFAULT_FRAME_MS, DEFAULT_GAMMA
 from ..errors import InputError
+from ..sequence import SCALE_MAX
 from .options import (
     FiniteFloat, Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames, scaleout_options,
     set_threads,
@@ -30,7 +31,7 @@ from .options import (
 @click.option("--radius", "radius_rule", type=click.Choice(["own", "step", "both"]), default="both",
               show_default=True, help="With --client: step = keep the radius computed at x; own = ipctk's warm start "
               "recomputes it from x_def.")
-@click.option("--dhat", type=FiniteFloat(min=0.0, min_open=True), default=None,
+@click.option("--dhat", type=FiniteFloat(min=0.0, min_open=True, max=SCALE_MAX), default=None,
               help="With --client: contact offset [default: the contact radius, else the thickness].")
 @click.option("--every", type=click.IntRange(min=1), default=1, show_default=True,
               help="With --client: replay every k-th step.")

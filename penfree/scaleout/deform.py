@@ -76,12 +76,11 @@ def _light(steps) -> dict:
 
 def _write_output(path, out_path, seq, steps, groups, options, overwrite):
     """The result of `path` as a serial ``penfree deform`` writes it."""
-    from .._version import __version__
+    from ..core.pipeline.deform import result_attrs
     from ..formats.result import write_result
 
     opts = _options_of(options, seq, options.get("frames"))
-    attrs = {"penfree_version": __version__, "input": os.path.basename(path),
-             "options": dict(opts, weights="weights" if seq.weights is not None else None)}
+    attrs = result_attrs(path, opts, weights="weights" if seq.weights is not None else None)
     write_result(out_path, seq, steps, attrs, groups=groups, overwrite=overwrite)
 
 

@@ -141,3 +141,32 @@ def test_per_component_output_verifies(cli, tmp_path):
             assert certify(A, 0.0)
     v = cli("verify", out)
     assert v.exit_code == 0, v.output
+
+
+def test_result_records_the_thickness_it_guarantees(cli, tmp_path):
+    """`--thickness`/`--contact-radius` given to deform are the result's own attributes,
+    so that `verify` and `report` of the result check the separation deform guaranteed
+    (they used to check the input's, 0 here)."""
+    src, out = tmp_path / "in.h5", tmp_path / "out.h5"
+    write_sequence(src, _cloth())
+    cli("deform", src, "-o", out, "--thickness", "0.003", "--contact-radius", "0.01", expect=0)
+    res = read_result(str(out))
+    assert res.sequence.thickness == 0.003
+    assert res.sequence.contact_radius == 0.01
+    assert res.attrs["options"]["thickness"] == 0.003
+    r = cli("verify", out, "--json", expect=0)
+    assert json.loads(r.stdout)["thickness"] == 0.003
+
+
+@pytest.mark.parametrize("option", ["--thickness", "--contact-radius", "--dhat"])
+def test_distances_beyond_the_supported_range_are_refused(cli, tmp_path, option):
+    """A distance option above `SCALE_MAX` is refused like a file attribute beyond it
+    (1e200 overflowed the CCD's squared distances: a traceback and exit 1)."""
+    src = tmp_path / "in.h5"
+    write_sequence(src, _cloth())
+    args = ["deform", src, "-o", tmp_path / "out.h5", option, "1e200"]
+    if option == "--dhat":
+        args += ["--model", "auto", "--client-model", "isotropic"]
+    r = cli(*args, expect=2)
+    assert "1e+100" in r.stderr and "Usage:" not in r.output
+    cli("verify", src, "--thickness", "1e200", expect=2)

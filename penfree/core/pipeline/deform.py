@@ -12,13 +12,16 @@ the layout of SPEC section 8; writing them is the formats layer's job.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..._version import __version__
 from ...errors import CertificateError, InputError
 from ..fit.certificate import certify_map
 from ..verify.gate import StepGate, margin_rule
+from ..verify.path import check_thickness
 from ..trust.stats import compute_stats, residual_summary
 from ..fit.step import fit_step
 from .strategy import make_strategy, step_input, with_shortened
@@ -106,8 +109,9 @@ def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thic
     `certify_map` among its checks) and is certified again before it is recorded; a
     step that would not be raises CertificateError instead of being written.
     """
-    thickness = seq.thickness if thickness is None else float(thickness)
-    contact_radius = seq.contact_radius if contact_radius is None else float(contact_radius)
+    thickness = check_thickness(seq.thickness if thickness is None else thickness)
+    contact_radius = check_thickness(seq.contact_radius if contact_radius is None else contact_radius,
+                                     "contact_radius")
     weights = seq.weights if weights is None else weights
     S_idx = step_indices(seq.n_frames, frames)
     m = required_margin(thickness, margin)
@@ -154,6 +158,16 @@ def run_options(model, projection, margin, thickness, contact_radius, frames, pe
                                                f"{frames[1] if frames[1] is not None else ''}",
         "per_vertex": bool(per_vertex),
     }
+
+
+def result_attrs(input_path, options, **more_options) -> dict:
+    """The attributes of a deform result file: version, input name and `options`
+    (`run_options`, updated with `more_options`). The run's thickness and contact
+    radius replace the input's, so that `verify` and `report` of the result check
+    the separation that deform guaranteed, not the input's."""
+    return {"penfree_version": __version__, "input": os.path.basename(input_path),
+            "thickness": float(options["thickness"]), "contact_radius": float(options["contact_radius"]),
+            "options": dict(options, **more_options)}
 
 
 def _allocate(seq, S_idx, per_vertex) -> dict:

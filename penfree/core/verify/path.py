@@ -23,11 +23,14 @@ edges merged with the edges of their faces (`penfree.core.topology.scene_edges`)
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
 from ...constants import CCD_MAX_EXACT, DEFAULT_MAX_PAIRS
 from ...errors import InputError
+from ...sequence import SCALE_MAX
 from ..contact.broad_phase import (
     edge_edge_candidates,
     edge_face_candidates,
@@ -310,11 +313,16 @@ def _half_spaces(halves, scene, thickness, start, path, pre):
         path.sep = min(path.sep, sep)
 
 
-def check_thickness(thickness):
-    """`thickness` as a float; InputError unless finite and >= 0."""
-    t = float(thickness)
-    if not (np.isfinite(t) and t >= 0.0):
-        raise InputError(f"thickness must be finite and >= 0; got {thickness!r}")
+def check_thickness(thickness, name="thickness"):
+    """`thickness` (or another distance named `name`) as a float; InputError unless
+    finite, >= 0 and at most `SCALE_MAX`, the range a file's attributes are held to
+    (beyond it the squared distances of the CCD and the certificate overflow)."""
+    try:
+        t = float(thickness)
+    except (TypeError, ValueError):
+        t = math.nan
+    if not (np.isfinite(t) and 0.0 <= t <= SCALE_MAX):
+        raise InputError(f"{name} must be finite, >= 0 and at most {SCALE_MAX:g}; got {thickness!r}")
     return t
 
 

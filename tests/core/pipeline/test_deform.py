@@ -56,6 +56,19 @@ def test_frames_select_steps():
         step_indices(5, (0, 1))
 
 
+@pytest.mark.parametrize("name", ["thickness", "contact_radius"])
+@pytest.mark.parametrize("value", [1e200, -1e-3, float("nan"), "0.1mm"])
+def test_distances_outside_the_supported_range_are_refused(name, value):
+    """The library holds its distance arguments to the range of a file's attributes:
+    1e200 overflowed the squared distances instead of being refused."""
+    seq = _moving_sheets(gap=1.0, thickness=0.0)
+    with pytest.raises(InputError, match=name):
+        deform_sequence(seq, **{name: value})
+    if name == "thickness":
+        with pytest.raises(InputError, match="thickness"):
+            verify_step(seq.positions[0], seq.positions[1], faces=seq.faces, thickness=value)
+
+
 def test_deform_stats_defaults_to_the_sequence_values():
     seq = _moving_sheets(gap=1.0, thickness=0.05)
     steps = deform_sequence(seq, model="affine").steps
