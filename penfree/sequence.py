@@ -238,8 +238,8 @@ def _check_topology(arr, k, n, where, name):
             a = a.astype(np.int64)
         else:
             raise InputError(f"{name} must be integer indices; got {a.dtype} in {where}:/{name}")
+    lo, hi = int(a.min()), int(a.max())  # before the int64 cast: report a uint64 index as given, not wrapped
     a = a.astype(np.int64)
-    lo, hi = int(a.min()), int(a.max())
     if lo < 0 or hi >= n:
         bad = lo if lo < 0 else hi
         raise InputError(f"{name} indices must be in [0, {n - 1}] for {n} vertices; found {bad} in {where}:/{name}")

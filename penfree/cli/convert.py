@@ -1,7 +1,10 @@
 """``penfree convert IN OUT``: between HDF5, NPZ, numbered mesh files and XDMF."""
 
+import os
+
 import click
 
+from ..errors import InputError
 from .info import FORMAT_NAMES
 from .options import overwrite_option, usd_options
 
@@ -33,8 +36,13 @@ def command(input_path, output_path, out_format, in_format, deformed, overwrite,
     )
 
     out_format = out_format or detect_format(output_path, writing=True)
+    if out_format != "meshseq" and os.path.isdir(output_path):  # only a mesh sequence is written into a directory
+        raise InputError(f"output {output_path} is a directory; expected a file name for {out_format} "
+                         f"(a directory of frames only with --format meshseq)")
     in_format = in_format or ("hdf5" if deformed else detect_format(input_path))
-    inputs = input_files(input_path, in_format)  # mesh sequences: every frame; XDMF: its heavy-data file too
+    inputs = input_files(input_path, in_format)  # mesh sequences: every frame; XDMF: every heavy-data file too
+    if os.path.isdir(input_path):  # read whole: nothing may be written into it
+        inputs.append(input_path)
     check_outputs(output_paths(output_path, out_format), inputs, overwrite)  # before reading anything
     if deformed and out_format == "usd":  # both the recorded frames and the deformed states
         from ..formats.result import read_result

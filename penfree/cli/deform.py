@@ -83,7 +83,10 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
     from ..formats.atomic import check_file_name
 
     check_file_name(output_path)
-    check_outputs([output_path], input_files(input_path, in_format), overwrite)
+    inputs = input_files(input_path, in_format)
+    if os.path.isdir(input_path):  # a mesh sequence read whole: nothing may be written into it
+        inputs.append(input_path)
+    check_outputs([output_path], inputs, overwrite)
     frame_slice = parse_frames(frames)
     set_threads(threads)
     seq = read_sequence(input_path, format=in_format, prims=usd_prims, obstacles=usd_obstacles)

@@ -138,12 +138,16 @@ def output_files(path, format: str | None = None, n_frames: int = 0) -> list:
 def check_outputs(outputs, inputs, overwrite: bool = False) -> None:
     """Refuse when any output file is any input file (under any spelling, hard links too) or exists.
 
+    An input that is a directory (a mesh sequence named by its directory) is read
+    whole: no output may be that directory or lie inside it, since a file added
+    there would change what the directory reads as (12 frames instead of 6).
+
     Parameters
     ----------
     outputs : list of str
         `output_files` of the output.
     inputs : list of str
-        `input_files` of every input.
+        `input_files` of every input, plus any input directory.
     overwrite : bool
 
     Raises
@@ -152,5 +156,37 @@ def check_outputs(outputs, inputs, overwrite: bool = False) -> None:
     """
     from .atomic import check_output
 
+    inputs = [os.fspath(i) for i in inputs if i is not None]
+    dirs = [d for d in inputs if os.path.isdir(d)]
+    files = [i for i in inputs if i not in dirs]
     for p in outputs:
-        check_output(p, overwrite, inputs=inputs)
+        check_output(p, True, inputs=files)  # "is also an input" first: the most specific refusal
+        _check_pattern_names_no_input(os.fspath(p), files)
+        for d in dirs:
+            if _inside(os.fspath(p), d):
+                raise InputError(f"output {p} is inside the input directory {d}; choose an output outside it "
+                                 f"(inputs are never modified)")
+        check_output(p, overwrite)
+
+
+def _check_pattern_names_no_input(pattern: str, files: list) -> None:
+    """A printf output (``seq/frame_%04d.ply``) whose numbered files would include an input file is an input."""
+    from fnmatch import fnmatchcase
+
+    from .atomic import PRINTF_DIRECTIVE, printf_to_glob
+
+    head, base = os.path.split(pattern)
+    if not PRINTF_DIRECTIVE.search(base):
+        return
+    names = os.path.basename(printf_to_glob(pattern))
+    where = os.path.realpath(head or ".")
+    for f in files:
+        if fnmatchcase(os.path.basename(f), names) and os.path.realpath(os.path.dirname(f) or ".") == where:
+            raise InputError(f"output {pattern} is also an input (its frames include {f}); choose another output "
+                             f"name (inputs are never modified)")
+
+
+def _inside(child: str, parent: str) -> bool:
+    """`child` is `parent` or lies below it (links resolved; `child` need not exist)."""
+    child, parent = os.path.realpath(child), os.path.realpath(parent)
+    return child == parent or child.startswith(parent.rstrip(os.sep) + os.sep)

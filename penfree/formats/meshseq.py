@@ -10,7 +10,10 @@ polygons a fan of triangles. Every frame must have the vertex count and the
 topology of the first.
 
 Mesh files carry no thickness, dt, weights or obstacles: they are not written
-and read back as absent.
+and read back as absent. Two files with one frame number are refused. Writing
+replaces only the frame files it writes (with ``overwrite``) and refuses a
+directory that holds other frames of the same series: they would read back as
+extra frames, and penfree never removes a file it did not write.
 
 >>> seq = read_sequence("out/A%08d.ply")                          # doctest: +SKIP
 >>> write_sequence("frames/", seq)  # frames/frame_0000.ply ...  # doctest: +SKIP
@@ -30,7 +33,7 @@ import numpy as np
 
 from ..errors import FormatError, InputError, OutputExistsError
 from ..sequence import Sequence
-from ._registry import register
+from ._registry import FORMATS, register
 from .atomic import PRINTF_DIRECTIVE, TMP_PREFIX, TMP_SUFFIX, atomic_dir, on_commit, printf_to_glob, write_phase
 from .obj import read_obj, write_obj
 
@@ -122,7 +125,22 @@ def frame_files(path: str) -> list:
         raise InputError(f"no such file or directory: {path}")
     if len(files) < 2:
         raise InputError(f"{path} names {len(files)} mesh file(s); a sequence needs at least 2 frames")
+    _check_unique_numbers(files, path)
     return files
+
+
+def _check_unique_numbers(files: list, path: str) -> None:
+    """Two files with one frame number (``frame_3.ply``, ``frame_0003.ply``) are a conflict, not two frames."""
+    seen = {}
+    for p in files:
+        m = NUMBERED.match(os.path.basename(p))
+        if m is None:
+            continue
+        n = int(m.group(2))
+        if n in seen:
+            raise InputError(f"{seen[n]} and {p} have the same frame number {n} in {path}; "
+                             f"expected one file per frame (remove or rename one)")
+        seen[n] = p
 
 
 # --- reading -----------------------------------------------------------------
@@ -269,21 +287,66 @@ def check_writable(pattern: str, seq: Sequence) -> None:
 
 
 def output_files(path: str, n_frames: int) -> list:
-    """Every file writing `n_frames` frames to `path` creates, replaces or removes."""
+    """Every file writing `n_frames` frames to `path` creates or replaces (it never removes one)."""
     pattern = output_pattern(path)
-    new = [pattern % s for s in range(n_frames)]
-    return new + sorted(set(_from_pattern_quiet(pattern)) - set(new))
+    return [pattern % s for s in range(n_frames)]
+
+
+def _series_regex(base: str) -> re.Pattern:
+    """Names of the series of `base` (``frame_%04d.ply``) whatever their padding: ``frame_3.ply``, ``frame_00003.ply``."""
+    parts = PRINTF_DIRECTIVE.split(base)
+    return re.compile("^" + re.escape(parts[0]) + r"(\d+)" + re.escape(parts[3]) + "$")
+
+
+def check_frames_replaceable(pattern: str, n_frames: int) -> None:
+    """Refuse a write that would leave frames of its series beside its own, or replace a non-file.
+
+    Writing frames 0..n-1 replaces exactly those names. Another frame file of the
+    series (``frame_0009.ply``, ``frame_9.ply``) may be anyone's: penfree cannot tell
+    that it wrote it, so it is never removed, and left in place it would read back
+    as part of the sequence (an extra or a duplicate frame).
+
+    Raises
+    ------
+    InputError
+        Naming the first such file, the pattern and the frame count.
+    """
+    d, base = os.path.split(pattern)
+    d = d or "."
+    if not os.path.isdir(d):
+        return
+    ours = {base % s for s in range(n_frames)}
+    rx = _series_regex(base)
+    try:
+        names = os.listdir(d)
+    except OSError as exc:
+        raise InputError(f"cannot read output directory {d}: {exc.strerror or exc}") from None
+    for name in sorted(ours.intersection(names)):
+        full = os.path.join(d, name)
+        if os.path.islink(full) or not os.path.isfile(full):
+            raise InputError(f"output {full} exists and is not a regular file; penfree replaces only frame files "
+                             f"it writes; choose another output")
+    foreign = sorted((n for n in names if n not in ours and rx.match(n)), key=lambda n: (int(rx.match(n).group(1)), n))
+    if foreign:
+        more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
+        raise InputError(f"output directory {d} holds {foreign[0]!r}{more}, a frame file that this write ({n_frames} "
+                         f"frames of {base}) would not replace; --overwrite replaces only the frames penfree writes and "
+                         f"never removes a file it did not write (left there, it would read back as an extra frame); "
+                         f"move it away or choose another output")
 
 
 def write_meshseq(path: str, seq: Sequence, overwrite: bool = False) -> None:
     pattern = output_pattern(path)
     d, base = os.path.split(pattern)
     d = d or "."
+    if len(PRINTF_DIRECTIVE.findall(base)) != 1:
+        raise InputError(f"output pattern {pattern} must hold exactly one %d directive (e.g. A%08d.ply)")
     check_writable(pattern, seq)
     if not os.path.isdir(d):  # a fresh directory: swap in the whole tree at once
         with atomic_dir(d) as tmp:
             _write_frames(tmp, base, seq)
         return
+    check_frames_replaceable(pattern, seq.n_frames)
     old = glob.glob(printf_to_glob(pattern))
     if old and not overwrite:
         raise OutputExistsError(f"output {pattern} exists ({len(old)} files); pass --overwrite (overwrite=True) to replace it")
@@ -297,11 +360,9 @@ def write_meshseq(path: str, seq: Sequence, overwrite: bool = False) -> None:
         def commit():
             if not overwrite and glob.glob(printf_to_glob(pattern)):
                 raise OutputExistsError(f"output {pattern} exists; pass --overwrite (overwrite=True) to replace it")
+            check_frames_replaceable(pattern, len(names))  # again: files may have appeared meanwhile
             for name in names:
                 os.replace(os.path.join(tmp, name), os.path.join(d, name))
-            stale = set(_from_pattern_quiet(pattern)) - {os.path.join(d, n) for n in names}
-            for p in stale:  # frames of a longer earlier sequence would be read back as ours
-                os.unlink(p)
             shutil.rmtree(tmp, ignore_errors=True)
             return pattern
 
@@ -309,20 +370,19 @@ def write_meshseq(path: str, seq: Sequence, overwrite: bool = False) -> None:
         names += _write_frames(tmp, base, seq)
 
 
-def _from_pattern_quiet(pattern: str) -> list:
-    try:
-        return _from_pattern(pattern)
-    except InputError:
-        return []
-
-
 def _sniff(path: str, writing: bool = False) -> bool:
     base = os.path.basename(path)
     if PRINTF_DIRECTIVE.search(base) or path.endswith(os.sep):
         return True
     if writing:
-        return os.path.isdir(path)
+        # An existing directory receives frames, unless its name says which file to write (d.h5):
+        # then the extension decides, and that writer refuses the directory.
+        return os.path.isdir(path) and os.path.splitext(base)[1].lower() not in _known_extensions()
     return os.path.isdir(path) or (bool(GLOB_CHARS.search(path)) and not os.path.exists(path))
+
+
+def _known_extensions() -> set:
+    return {ext for spec in FORMATS.values() for ext in spec.extensions}
 
 
 register("meshseq", MESH_EXTENSIONS, read_meshseq, write_meshseq, sniff=_sniff,

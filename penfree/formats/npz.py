@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import os
 import zipfile
+import zlib
 
 import numpy as np
 
@@ -48,15 +49,39 @@ def read_npz(path: str) -> Sequence:
         raise FormatError(f"{path} is not a readable .npz archive ({type(exc).__name__}); expected numpy savez output") from None
     if not hasattr(z, "files"):
         raise FormatError(f"{path} holds a single array, not an .npz archive; expected positions (T, N, 3) and topology")
-    try:
-        with z:
-            return _read(z, path)
-    except (zipfile.BadZipFile, EOFError, OSError) as exc:
-        raise FormatError(f"{path} is a damaged .npz archive ({type(exc).__name__})") from None
-    except ValueError as exc:
-        if "pickle" in str(exc):
-            raise FormatError(f"{path} holds pickled objects; expected plain numeric arrays") from None
-        raise
+    with z:
+        return _read(_Members(z, path), path)
+
+
+#: What reading one damaged member raises: numpy (short data, bad header), zipfile (bad CRC), zlib, I/O.
+MEMBER_ERRORS = (ValueError, EOFError, OSError, zipfile.BadZipFile, zlib.error)
+
+
+class _Members:
+    """The archive's arrays by name; a member that cannot be read is a FormatError naming it.
+
+    ``np.load`` reads members lazily, so damage shows only when an array is read.
+    """
+
+    def __init__(self, z, path):
+        self.z, self.path, self.files = z, path, z.files
+
+    def __contains__(self, key):
+        return key in self.files
+
+    def __getitem__(self, key):
+        where = f"{self.path}:/{key}"
+        try:
+            a = self.z[key]
+        except MEMBER_ERRORS as exc:
+            if isinstance(exc, ValueError) and "pickle" in str(exc):
+                raise FormatError(f"{where} holds pickled objects; expected plain numeric arrays") from None
+            msg = " ".join(str(exc).split())[:120]
+            raise FormatError(f"cannot read array {where}: damaged .npy member ({type(exc).__name__}: {msg}); "
+                              f"expected numpy savez output") from None
+        if not isinstance(a, np.ndarray):  # numpy hands back the raw bytes of a member that is not .npy
+            raise FormatError(f"{where} is not a .npy array (no NUMPY header); expected numpy savez output")
+        return a
 
 
 def _read(z, path) -> Sequence:

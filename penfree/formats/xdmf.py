@@ -46,6 +46,28 @@ def _outputs(path: str) -> list:
     return [path, heavy_path(path)]
 
 
+def input_files(path: str) -> list:
+    """The XML and every HDF5 file its DataItems reference (``sim.h5:/data0``, relative to the XML).
+
+    meshio's TimeSeriesWriter names its heavy data ``sim.h5`` for ``sim.xdmf``, and
+    hand-written files may reference any name: each is an input that no output may replace.
+    ``path.h5`` (penfree's own name) is listed too, referenced or not.
+    """
+    files = [path, heavy_path(path)]
+    try:
+        root = ET.parse(path).getroot()
+    except (ET.ParseError, OSError, UnicodeDecodeError):
+        return files  # the reader reports what is wrong with the file
+    base = os.path.dirname(os.path.abspath(path))
+    for item in root.iter("DataItem"):
+        if item.get("Format") == "HDF":
+            fname = (item.text or "").strip().partition(":")[0].strip()
+            full = os.path.join(base, fname)
+            if fname and full not in files:
+                files.append(full)
+    return files
+
+
 # --- writing -----------------------------------------------------------------
 
 def _data_item(parent, ref, shape, dtype):
@@ -303,4 +325,4 @@ def _read_meshio_series(path: str) -> Sequence:
                     edges=np.concatenate(edges) if edges else None, origin=path)
 
 
-register("xdmf", (".xdmf", ".xmf"), read_xdmf, write_xdmf, outputs=_outputs, input_files=_outputs)
+register("xdmf", (".xdmf", ".xmf"), read_xdmf, write_xdmf, outputs=_outputs, input_files=input_files)

@@ -136,3 +136,81 @@ def test_deformed_states_export(cli, tmp_path):
     bad = cli("convert", src, tmp_path / "x.xdmf", "--deformed")
     assert bad.exit_code == 2 and not (tmp_path / "x.xdmf").exists()
     assert "in.h5" in bad.output
+
+
+def _cloth(path):
+    """A 16-vertex cloth, 6 frames (float64)."""
+    g = np.stack(np.meshgrid(np.arange(4.0), np.arange(4.0)), -1).reshape(-1, 2)
+    p0 = np.column_stack([g, np.zeros(16)])
+    faces = [[i * 4 + j, i * 4 + j + 1, i * 4 + j + 5] for i in range(3) for j in range(3)]
+    seq = Sequence(positions=np.stack([p0 + [0, 0, 0.1 * t] for t in range(6)]), faces=np.array(faces)).validate()
+    write_sequence(path, seq)
+    return seq
+
+
+def test_meshio_heavy_data_is_an_input(cli, tmp_path, monkeypatch):
+    import meshio
+
+    monkeypatch.chdir(tmp_path)
+    seq = _cloth(tmp_path / "a.h5")
+    with meshio.xdmf.TimeSeriesWriter("sim.xdmf") as w:  # arrays in sim.h5 (meshio's default name)
+        w.write_points_cells(seq.positions[0], [("triangle", seq.faces)])
+        for s in range(seq.n_frames):
+            w.write_data(float(s), point_data={"positions": seq.positions[s]})
+    r = cli("convert", "sim.xdmf", "sim.h5", "--overwrite", expect=2)  # the contract checks nothing changed
+    assert "sim.h5 is also an input" in r.stderr
+    np.testing.assert_array_equal(read_sequence("sim.xdmf").positions, seq.positions)
+
+
+@pytest.mark.parametrize("user_file", ["frame_0009.ply", "frame_9.ply"])
+def test_overwrite_never_deletes_a_users_frame(cli, tmp_path, user_file):
+    _cloth(tmp_path / "a.h5")
+    (tmp_path / "userdir").mkdir()
+    (tmp_path / "userdir" / user_file).write_text("mine")
+    r = cli("convert", tmp_path / "a.h5", tmp_path / "userdir", "--format", "meshseq", "--overwrite", expect=2)
+    assert user_file in r.stderr and "did not write" in r.stderr
+    assert os.listdir(tmp_path / "userdir") == [user_file]
+    assert (tmp_path / "userdir" / user_file).read_text() == "mine"
+
+
+def test_overwrite_replaces_exactly_the_frames_it_writes(cli, tmp_path):
+    seq = _cloth(tmp_path / "a.h5")
+    cli("convert", tmp_path / "a.h5", tmp_path / "ply", "--format", "meshseq", expect=0)
+    (tmp_path / "ply" / "notes.txt").write_text("mine")
+    r = cli("convert", tmp_path / "a.h5", tmp_path / "ply", "--format", "meshseq", "--overwrite", expect=0)
+    assert "notes.txt" not in str(r.changed) and (tmp_path / "ply" / "notes.txt").read_text() == "mine"
+    assert sorted(os.listdir(tmp_path / "ply")) == [f"frame_{s:04d}.ply" for s in range(6)] + ["notes.txt"]
+    np.testing.assert_array_equal(read_sequence(tmp_path / "ply" / "frame_%04d.ply").positions, seq.positions)
+
+
+@pytest.mark.parametrize("out", ["ply2/frame_%02d.ply", "ply2", "ply2/", "ply2/out.h5", "ply2/sub/out.npz"],
+                         ids=["other-pattern", "same-directory", "same-directory-slash", "file-inside", "deeper"])
+def test_output_inside_an_input_directory_is_refused(cli, tmp_path, out):
+    _cloth(tmp_path / "a.h5")
+    cli("convert", tmp_path / "a.h5", tmp_path / "ply2", "--format", "meshseq", expect=0)
+    args = ["--format", "meshseq"] if out.startswith("ply2") and "." not in out else []
+    r = cli("convert", tmp_path / "ply2", str(tmp_path / out), "--overwrite", *args, expect=2)
+    assert "ply2" in r.stderr and "input" in r.stderr
+    assert read_sequence(tmp_path / "ply2").n_frames == 6
+
+
+@pytest.mark.parametrize("name", ["d.h5", "d.npz", "d.xdmf"])
+def test_file_output_that_is_a_directory(cli, tmp_path, name):
+    _cloth(tmp_path / "a.h5")
+    (tmp_path / name).mkdir()
+    r = cli("convert", tmp_path / "a.h5", tmp_path / name, "--overwrite", expect=2)
+    assert f"{name} is a directory" in r.stderr
+    assert os.listdir(tmp_path / name) == []
+
+
+def test_damaged_npz_member_exit_2(cli, tmp_path):
+    import io
+    import zipfile
+
+    buf = io.BytesIO()
+    np.save(buf, np.zeros((6, 16, 3)))
+    with zipfile.ZipFile(tmp_path / "trunc_member.npz", "w") as z:
+        z.writestr("positions.npy", buf.getvalue()[: len(buf.getvalue()) // 2])
+    for args in (["info", tmp_path / "trunc_member.npz"], ["convert", tmp_path / "trunc_member.npz", tmp_path / "o.h5"]):
+        r = cli(*args, expect=2)
+        assert "trunc_member.npz:/positions" in r.stderr

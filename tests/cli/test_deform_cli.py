@@ -170,3 +170,14 @@ def test_distances_beyond_the_supported_range_are_refused(cli, tmp_path, option)
     r = cli(*args, expect=2)
     assert "1e+100" in r.stderr and "Usage:" not in r.output
     cli("verify", src, "--thickness", "1e200", expect=2)
+
+
+def test_output_inside_an_input_directory_is_refused(cli, tmp_path):
+    """A mesh sequence named by its directory is read whole: a result written into it
+    would change what it reads as, so deform refuses it as convert does."""
+    src, frames = tmp_path / "in.h5", tmp_path / "ply"
+    write_sequence(src, _cloth())
+    cli("convert", src, frames, "--format", "meshseq", expect=0)
+    r = cli("deform", frames, "-o", frames / "res.h5", expect=2)
+    assert "inside the input directory" in r.stderr
+    cli("deform", frames, "-o", tmp_path / "res.h5", expect=0)

@@ -30,6 +30,14 @@ def test_detect_by_content_and_directory(tmp_path):
     assert detect_format(str(tmp_path)) == "meshseq"
 
 
+@pytest.mark.parametrize("name,fmt", [("d.h5", "hdf5"), ("d.npz", "npz"), ("d.xdmf", "xdmf"), ("d.usda", "usd"),
+                                      ("d.ply", "meshseq"), ("d", "meshseq")])
+def test_existing_directory_output_keeps_its_extension_format(tmp_path, name, fmt):
+    # an explicit file extension wins over "an existing directory is a mesh sequence"
+    (tmp_path / name).mkdir()
+    assert detect_format(str(tmp_path / name), writing=True) == fmt
+
+
 def test_unknown_extension_names_file_and_formats(tmp_path):
     with pytest.raises(InputError) as err:
         read_sequence(tmp_path / "frames.csv")

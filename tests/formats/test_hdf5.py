@@ -139,6 +139,8 @@ GOOD = np.zeros((3, 4, 3))
      "frame 1 holds NaN or Inf in {p}:/positions"),
     (lambda p: _write(p, positions=GOOD, faces=[[0, 1, 4]]), InputError, "found 4 in {p}:/faces"),
     (lambda p: _write(p, positions=GOOD, edges=[[0, -2]]), InputError, "found -2 in {p}:/edges"),
+    (lambda p: _write(p, positions=GOOD, faces=np.array([[0, 1, 2**63 + 5]], dtype=np.uint64)), InputError,
+     "found 9223372036854775813 in {p}:/faces"),
     (lambda p: _write(p, positions=GOOD, faces=[[0, 1, 2, 3]]), InputError, "faces must be (M, 3); got (1, 4) in {p}:/faces"),
     (lambda p: _write(p, positions=GOOD, weights=np.ones(5)), InputError, "weights must be (4,) to match positions; got (5,) in {p}:/weights"),
     (lambda p: _write(p, positions=GOOD, weights=-np.ones(4)), InputError, "weights must be finite and >= 0; got min -1 in {p}:/weights"),
@@ -146,7 +148,7 @@ GOOD = np.zeros((3, 4, 3))
     (lambda p: _write(p, positions=GOOD, attrs={"thickness": "thin"}), InputError, "thickness must be a finite number"),
     (lambda p: _write(p, positions=np.array([[[b"a"] * 3] * 4] * 2)), FormatError, "positions must be float32 or float64"),
 ], ids=["not-hdf5", "missing-positions", "wrong-shape", "one-frame", "inf-frame-1", "index-out-of-range",
-        "negative-index", "faces-4-columns", "weights-length", "negative-weights", "format-version-2",
+        "negative-index", "uint64-index-past-int64", "faces-4-columns", "weights-length", "negative-weights", "format-version-2",
         "text-thickness", "text-positions"])
 def test_bad_inputs(tmp_path, build, exc, expect):
     p = str(tmp_path / "bad.h5")

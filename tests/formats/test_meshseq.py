@@ -157,17 +157,34 @@ def test_directory_refusals(tmp_path, make, expect):
         read_sequence(str(tmp_path), format="meshseq")
 
 
-def test_existing_frames_need_overwrite_and_stale_frames_go(tmp_path, rng):
+def test_existing_frames_need_overwrite(tmp_path, rng):
     pattern = str(tmp_path / "f_%04d.obj")
-    write_sequence(pattern, _seq(rng, T=5))
+    write_sequence(pattern, _seq(rng, T=3))
     (tmp_path / "keep.txt").write_text("mine")
     with pytest.raises(OutputExistsError):
         write_sequence(pattern, _seq(rng, T=3))
-    assert len(os.listdir(tmp_path)) == 6
-    short = _seq(rng, T=3)
-    write_sequence(pattern, short, overwrite=True)
+    assert len(os.listdir(tmp_path)) == 4
+    again = _seq(rng, T=3)
+    write_sequence(pattern, again, overwrite=True)
     assert sorted(os.listdir(tmp_path)) == ["f_0000.obj", "f_0001.obj", "f_0002.obj", "keep.txt"]
-    np.testing.assert_array_equal(read_sequence(pattern).positions, short.positions)
+    np.testing.assert_array_equal(read_sequence(pattern).positions, again.positions)
+
+
+@pytest.mark.parametrize("extra", ["f_0004.obj", "f_9.obj", "f_00001.obj"],
+                         ids=["longer-earlier-run", "unpadded", "other-padding"])
+def test_overwrite_never_removes_frames_it_does_not_write(tmp_path, rng, extra):
+    # A frame file this write does not replace could be anyone's (penfree cannot tell), and
+    # leaving it would make the series read back with an extra frame: refuse, remove nothing.
+    pattern = str(tmp_path / "f_%04d.obj")
+    first = _seq(rng, T=3)
+    write_sequence(pattern, first)
+    (tmp_path / extra).write_text("mine")
+    before = {n: (tmp_path / n).read_bytes() for n in os.listdir(tmp_path)}
+    for overwrite in (True, False):
+        with pytest.raises(InputError) as err:
+            write_sequence(pattern, _seq(rng, T=3), overwrite=overwrite)
+        assert extra in str(err.value) and "did not write" in str(err.value)
+        assert {n: (tmp_path / n).read_bytes() for n in os.listdir(tmp_path)} == before
 
 
 @pytest.mark.parametrize("fresh", [True, False], ids=["new-directory", "existing-directory"])
@@ -188,3 +205,15 @@ def test_failure_midway_leaves_nothing(tmp_path, rng, monkeypatch, fresh):
         write_sequence(str(out / "f_%04d.ply"), _seq(rng))
     assert os.listdir(tmp_path) == ([] if fresh else ["out"])
     assert not out.exists() or os.listdir(out) == []
+
+
+@pytest.mark.parametrize("name", ["dir", "siblings", "glob"])
+def test_duplicate_frame_numbers_are_refused(tmp_path, rng, name):
+    d = tmp_path / "ply"
+    write_sequence(str(d) + os.sep, _seq(rng, T=6))
+    (d / "frame_3.ply").write_bytes((d / "frame_0003.ply").read_bytes())
+    path = {"dir": str(d), "siblings": str(d / "frame_0001.ply"), "glob": str(d / "frame_*.ply")}[name]
+    with pytest.raises(InputError) as err:
+        read_sequence(path)
+    msg = str(err.value)
+    assert "frame number 3" in msg and "frame_0003.ply" in msg and "frame_3.ply" in msg, msg

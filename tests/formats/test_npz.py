@@ -57,3 +57,55 @@ def test_bad_inputs(tmp_path, build, exc, expect):
     with pytest.raises(exc) as err:
         read_sequence(p)
     assert expect.format(p=p) in str(err.value)
+
+
+def _npy_bytes(a) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    np.save(buf, a)
+    return buf.getvalue()
+
+
+def _zip(p, members, compression=None):
+    import zipfile
+
+    with zipfile.ZipFile(p, "w", compression=compression or zipfile.ZIP_STORED) as z:
+        for name, data in members.items():
+            z.writestr(name, data)
+
+
+def _flip_member_bytes(p):
+    """Compress positions.npy, then damage its deflate stream in place (CRC and zlib errors)."""
+    import zipfile
+
+    _zip(p, {"positions.npy": _npy_bytes(np.arange(6 * 16 * 3, dtype=np.float64).reshape(6, 16, 3))},
+         zipfile.ZIP_DEFLATED)
+    with zipfile.ZipFile(p) as z:
+        info = z.getinfo("positions.npy")
+    data = bytearray(open(p, "rb").read())
+    start = info.header_offset + 30 + len(info.filename) + len(info.extra)
+    for k in range(start + 5, start + 40):
+        data[k] ^= 0xA5
+    open(p, "wb").write(bytes(data))
+
+
+POS = np.zeros((6, 16, 3))
+
+
+@pytest.mark.parametrize("build,member", [
+    (lambda p: _zip(p, {"positions.npy": _npy_bytes(POS)[: len(_npy_bytes(POS)) // 2]}), "positions"),
+    (lambda p: _zip(p, {"positions.npy": b"\x93NUMPY\x01\x00\x10\x00{'descr': <bad>}\n" + bytes(64)}), "positions"),
+    (lambda p: _zip(p, {"positions.npy": b"definitely not an npy member"}), "positions"),
+    (_flip_member_bytes, "positions"),
+    (lambda p: _zip(p, {"positions.npy": _npy_bytes(POS), "faces.npy": _npy_bytes(np.zeros((2, 3), np.int64))[:90]}),
+     "faces"),
+], ids=["truncated-member", "bad-header", "not-npy", "damaged-deflate", "truncated-second-member"])
+def test_damaged_member_is_named(tmp_path, build, member):
+    # np.load reads members lazily: the damage shows only when the array is read
+    p = str(tmp_path / "trunc_member.npz")
+    build(p)
+    with pytest.raises(FormatError) as err:
+        read_sequence(p)
+    msg = str(err.value)
+    assert f"{p}:/{member}" in msg and "\n" not in msg, msg

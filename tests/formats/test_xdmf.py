@@ -3,6 +3,7 @@
 import os
 import xml.etree.ElementTree as ET
 
+import h5py
 import numpy as np
 import pytest
 
@@ -127,3 +128,39 @@ def test_missing_heavy_data(tmp_path, rng):
     os.unlink(str(p) + ".h5")
     with pytest.raises(InputError, match=r"no such file: .*a\.xdmf\.h5"):
         read_sequence(p)
+
+
+def test_input_files_are_every_heavy_file_the_xml_references(tmp_path, rng):
+    # meshio's TimeSeriesWriter puts its arrays in "<stem>.h5", hand-written files anywhere
+    from penfree.formats import input_files
+
+    (tmp_path / "data").mkdir()
+    pos = rng.random((2, 3, 3))
+    with h5py.File(tmp_path / "data" / "geo.h5", "w") as f:
+        f["p0"], f["p1"] = pos[0], pos[1]
+    with h5py.File(tmp_path / "topo.h5", "w") as f:
+        f["faces"] = np.array([[0, 1, 2]])
+    grids = "".join(
+        f"<Grid Name='g{s}' GridType='Uniform'><Time Value='{s}'/>"
+        f"<Topology TopologyType='Triangle' NumberOfElements='1'>"
+        f"<DataItem Dimensions='1 3' NumberType='Int' Precision='8' Format='HDF'> topo.h5:/faces </DataItem></Topology>"
+        f"<Geometry GeometryType='XYZ'><DataItem Dimensions='3 3' Precision='8' Format='HDF'>"
+        f"data/geo.h5:/p{s}</DataItem></Geometry></Grid>" for s in range(2))
+    p = tmp_path / "hand.xdmf"
+    p.write_text(f"<Xdmf><Domain><Grid Name='x' GridType='Collection' CollectionType='Temporal'>{grids}"
+                 f"</Grid></Domain></Xdmf>")
+    np.testing.assert_array_equal(read_sequence(p).positions, pos)
+    got = {os.path.realpath(f) for f in input_files(str(p))}
+    assert {str(p), str(tmp_path / "data" / "geo.h5"), str(tmp_path / "topo.h5")} <= got
+
+
+def test_input_files_of_a_meshio_time_series(tmp_path, rng, monkeypatch):
+    import meshio
+    from penfree.formats import input_files
+
+    monkeypatch.chdir(tmp_path)
+    with meshio.xdmf.TimeSeriesWriter("sim.xdmf") as w:
+        w.write_points_cells(rng.random((3, 3)), [("triangle", np.array([[0, 1, 2]]))])
+        for s in range(2):
+            w.write_data(float(s), point_data={"positions": rng.random((3, 3))})
+    assert str(tmp_path / "sim.h5") in {os.path.realpath(f) for f in input_files("sim.xdmf")}
