@@ -145,15 +145,16 @@ def test_whole_file_tasks_write_their_results(inputs, tmp_path, scheduler):
 def test_deform_local_workers_and_no_silent_overwrite(inputs, tmp_path):
     pytest.importorskip("distributed")
     runner = CliRunner()
-    out = tmp_path / "out"
+    out = tmp_path / "out" / "rods_def.h5"  # one input: -o names its result file, as in a serial run
     args = ["deform", str(inputs / "rods.h5"), "-o", str(out), "--workers", "2", "--model", "affine",
             "--frames", ":12"]
     r = runner.invoke(main, args)
     assert r.exit_code == 0, r.output
-    before = (out / "rods.h5").stat().st_mtime_ns
+    before = out.stat().st_mtime_ns
     r = runner.invoke(main, args)
     assert r.exit_code == 2 and "exists" in r.output
-    assert (out / "rods.h5").stat().st_mtime_ns == before
+    assert out.stat().st_mtime_ns == before
+    assert sorted(p.name for p in out.parent.iterdir()) == ["rods_def.h5"]
 
 
 def test_verify_and_report_many_equal_serial(inputs, tmp_path, scheduler):
@@ -187,7 +188,7 @@ def test_failed_task_names_file_and_frames(tmp_path, scheduler):
            "frames": None}
     with distributed.Client(scheduler) as c:
         with pytest.raises(InputError, match=r"rods\.h5 frames 5:9"):
-            scaleout.run_tasks(c, scaleout.deform_task, [Task(path, 5, 9)], (str(tmp_path / "x.h5"), bad, False, 1))
+            scaleout.run_tasks(c, scaleout.deform_task, [Task(path, 5, 9)], (str(tmp_path), bad, False, 1))
 
 
 def test_without_dask_one_line_and_exit_2(inputs, tmp_path, monkeypatch):
@@ -230,7 +231,7 @@ def test_range_task_reads_only_its_frames_and_equals_the_full_read(tmp_path, mon
     monkeypatch.setattr(formats, "read_sequence", spy)
     opts = {"model": "auto", "projection": "auto", "margin": None, "thickness": None, "per_vertex": True,
             "frames": None}
-    part = scaleout.deform_task(Task(path, 5, 9), str(tmp_path / "x.h5"), opts, True, 1)
+    part = scaleout.deform_task(Task(path, 5, 9), str(tmp_path), opts, True, 1)
     assert seen == [(4, 10)]
     steps, groups = merge_partials([part])
     ref = deform_sequence(real(path), model="auto", frames=(5, 9), per_vertex=True, check_start=True)
@@ -248,8 +249,9 @@ def test_stopped_local_run_leaves_no_temporary(inputs, tmp_path, monkeypatch):
     out.mkdir()
     (out / ".pfkeepme01.tmp").write_text("someone else's, there before the run")
 
-    def stopped(**kw):
-        (out / ".pfstopped01.tmp").write_text("half a result")
+    def stopped(**kw):  # workers write inside the run's own folder
+        (Path(kw["stage"]) / ".pfstopped01.tmp").write_text("half a result")
+        (Path(kw["stage"]) / "rods.parts").mkdir()
         raise KeyboardInterrupt
 
     monkeypatch.setattr(sdeform, "_run", lambda **kw: stopped(**kw))

@@ -18,7 +18,8 @@ from .options import (
 @click.command("deform")
 @click.argument("input_paths", metavar="IN...", nargs=-1, required=True, type=click.Path(dir_okay=True))
 @click.option("-o", "--output", "output_path", required=True, type=click.Path(),
-              help="Result file (HDF5) to write; with several inputs a directory (<dir>/<stem>.h5 each).")
+              help="Result file (HDF5) of one input file; with several files, a directory of recordings or a "
+                   "glob: a directory (<dir>/<stem>.h5 each).")
 @click.option("--model", type=click.Choice(MODELS + ("auto", "per-component")), default="auto",
               show_default=True,
               help="Map family fitted toward the constant-velocity prediction; auto: the certified "

@@ -24,13 +24,13 @@ class _Bar:
             self.bar.close()
 
 
-def deform(specs, outdir, options, *, overwrite, with_stats, workers, scheduler, threads, as_json):
+def deform(specs, output, options, *, overwrite, with_stats, workers, scheduler, threads, as_json):
     from ..core.pipeline.deform import summarize_steps
     from ..scaleout import deform_many
 
     bar = _Bar("deform")
     try:
-        done = deform_many(specs, outdir, options=options, overwrite=overwrite, with_stats=with_stats,
+        done = deform_many(specs, output, options=options, overwrite=overwrite, with_stats=with_stats,
                            workers=workers, scheduler=scheduler, threads=threads, progress=bar, on_total=bar.total)
     finally:
         bar.close()

@@ -1,18 +1,13 @@
 """Partial deform results of frame ranges (`penfree.scaleout`): each range's ``steps``
-and ``groups`` written as one NPZ beside the output, and merged back in frame order
-into the layout of a serial run (`penfree.formats.result`)."""
+and ``groups`` written as one NPZ into a folder of the run's own (created by the run,
+never a user's name), and merged back in frame order into the layout of a serial run
+(`penfree.formats.result`)."""
 
 from __future__ import annotations
 
 import os
 
 import numpy as np
-
-
-def parts_dir(out_path):
-    """The hidden folder beside `out_path` that holds its partial results."""
-    head, tail = os.path.split(out_path)
-    return os.path.join(head, f".{os.path.splitext(tail)[0]}.parts")
 
 
 def _flatten(prefix, d, out):
@@ -35,12 +30,16 @@ def _unflatten(flat):
     return out
 
 
-def write_partial(out_path, steps, groups) -> str:
-    """Write one frame range's `steps` and `groups` into `parts_dir(out_path)`; its path."""
+def write_partial(parts, steps, groups) -> str:
+    """Write one frame range's `steps` and `groups` into the folder `parts`; its path.
+
+    `parts` must exist (the run that owns it made it): a folder removed meanwhile (the
+    run stopped) is not created again.
+    """
     flat = _flatten("steps/", steps, {})
     _flatten("groups/", groups, flat)
-    parts = parts_dir(out_path)
-    os.makedirs(parts, exist_ok=True)
+    if not os.path.isdir(parts):
+        raise FileNotFoundError(f"the folder of partial results {parts} is gone (the run stopped)")
     name = os.path.join(parts, f"part-{int(steps['frame'][0]):010d}.npz")
     tmp = name + f".tmp-{os.getpid()}.npz"
     np.savez(tmp, **flat)

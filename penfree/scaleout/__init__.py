@@ -9,29 +9,37 @@ reads frames ``s - 1``, ``s`` and ``s + 1`` only, so ranges of steps need overla
 frames and nothing else: a ``deform`` range reads just the frames ``lo - 1 .. hi`` of
 its file (HDF5 ``frame_window``) and runs the library on them, its frame numbers
 shifted back to the file's; ``verify`` tasks read their file and select their steps
-with a frame slice. A file that is one task is
-deformed and written (atomically) by that task on its worker. Each ``deform`` range of a
-split file writes a partial result beside the output (``.<stem>.parts/``, each part
-written under a temporary name and renamed); one more task, which Dask runs once all
-ranges of the file are done, merges them in frame order into the layout of a serial run,
-writes it atomically and removes the parts. Only file names and the small per-step
-tables travel back to the driver; results are compressed and written by the workers in
-parallel. ``report`` runs one task per file (statistics and ladder are per file).
+with a frame slice.
+
+Outputs. ``deform`` of one input file writes the ``-o`` file, as a serial run; several
+inputs (several files, a directory of recordings, a pattern) write ``<dir>/<stem>.h5``.
+Every input is read and validated on the driver first, as a serial run reads it, so a
+bad input fails before a cluster starts and nothing is written. A ``deform`` run then
+works in a folder of its own, a new ``.pfXXXXXXXX.tmp`` in the output directory: a file
+that is one task is deformed and written there by that task on its worker; each range of
+a split file writes a partial result into ``<stem>.parts/`` there, and one more task,
+which Dask runs once all ranges of the file are done, merges them in frame order into
+the layout of a serial run. When every task succeeded the results are moved to their
+names together (`penfree.formats.atomic`); on any failure or interrupt none appears,
+and the run removes its folder and the directories it created, nothing else. Only file
+names and the small per-step tables travel back to the driver; results are compressed
+and written by the workers in parallel. ``report`` runs one task per file (statistics
+and ladder are per file).
 
 Results are those of a serial run, bit for bit: every step is computed by the same
 code from the same frames, and the per-step tables are merged in frame order (the
 selection table's candidate columns in order of first appearance, as a serial run
 orders them). One progress callback counts finished tasks; a failed task names its
-file and frame range.
+file and frame range in one line (the workers' own error logs are silenced).
 """
 
 from .cluster import DASK_MISSING, client, gather, n_workers_of, require_dask, run_tasks
 from .deform import deform_file_task, deform_many, deform_task, merge_task
-from .plan import (DIRECTORY_PATTERNS, MIN_STEPS_PER_TASK, TASKS_PER_WORKER, Task, expand_inputs, is_scaleout,
-                   output_paths, plan)
+from .plan import (DIRECTORY_PATTERNS, FILE_EXTENSIONS, MIN_STEPS_PER_TASK, TASKS_PER_WORKER, Task,
+                   deform_outputs, expand_inputs, is_scaleout, one_input, output_paths, plan)
 from .verify_report import report_many, report_task, verify_many, verify_task
 
-__all__ = ["DASK_MISSING", "DIRECTORY_PATTERNS", "MIN_STEPS_PER_TASK", "TASKS_PER_WORKER", "Task", "client",
-           "deform_file_task", "deform_many", "deform_task", "expand_inputs", "gather", "is_scaleout", "merge_task",
-           "n_workers_of", "output_paths", "plan", "report_many", "report_task", "require_dask", "run_tasks",
-           "verify_many", "verify_task"]
+__all__ = ["DASK_MISSING", "DIRECTORY_PATTERNS", "FILE_EXTENSIONS", "MIN_STEPS_PER_TASK", "TASKS_PER_WORKER", "Task",
+           "client", "deform_file_task", "deform_many", "deform_outputs", "deform_task", "expand_inputs", "gather",
+           "is_scaleout", "merge_task", "n_workers_of", "one_input", "output_paths", "plan", "report_many",
+           "report_task", "require_dask", "run_tasks", "verify_many", "verify_task"]

@@ -3,6 +3,7 @@ one loop that collects task results in order, counts progress and names a failed
 
 from __future__ import annotations
 
+import logging
 import os
 import uuid
 from contextlib import contextmanager
@@ -37,9 +38,11 @@ def client(workers=None, scheduler=None):
             c.close()
         return
     n = workers or os.cpu_count() or 1
-    # One thread per worker process: workers run Numba kernels themselves.
+    # One thread per worker process: workers run Numba kernels themselves. Their logs are
+    # silenced below CRITICAL, ERROR too ("Compute Failed" and a traceback): `gather`
+    # reports a failed task itself, in one line naming its file and frame range.
     with distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                  silence_logs=40) as cluster, distributed.Client(cluster) as c:
+                                  silence_logs=logging.CRITICAL) as cluster, distributed.Client(cluster) as c:
         yield c
 
 
@@ -76,15 +79,19 @@ def gather(futures, labels, progress=None) -> list:
             try:
                 results[k] = fut.result()
             except InputError as exc:
-                raise InputError(f"{labels[k]}: {exc}") from None
+                raise InputError(f"{labels[k]}: {_one_line(exc)}") from None
             except Exception as exc:  # a worker failure: name the task, no traceback
-                raise InputError(f"task failed on {labels[k]}: {type(exc).__name__}: {exc}") from None
+                raise InputError(f"task failed on {labels[k]}: {type(exc).__name__}: {_one_line(exc)}") from None
             if progress is not None:
                 progress()
     finally:
         for f in futures:
             f.cancel()
     return results
+
+
+def _one_line(exc) -> str:
+    return " ".join(str(exc).split())
 
 
 def set_threads(threads):

@@ -1,15 +1,17 @@
-"""``deform`` of several inputs on Dask: whole-file tasks that write their result, frame
-ranges that write partial results, and the task that merges a split file's partials."""
+"""``deform`` on Dask: whole-file tasks that write their result, frame ranges that write
+partial results, and the task that merges a split file's partials, all inside a folder
+of the run's own; the results are moved to their names once every task succeeded."""
 
 from __future__ import annotations
 
 import os
 import shutil
+import tempfile
 
 from ..errors import InputError
-from ..formats.partials import merge_partials, parts_dir, write_partial
+from ..formats.partials import merge_partials, write_partial
 from .cluster import client, gather, n_workers_of, new_key, set_threads
-from .plan import expand_inputs, output_paths, plan
+from .plan import deform_outputs, expand_inputs, plan
 
 # --- deform ------------------------------------------------------------------------
 
@@ -41,32 +43,36 @@ def _deform(task, options, with_stats, threads):
     return seq, out.steps, groups
 
 
-def deform_task(task, out_path, options, with_stats, threads):
-    """Worker: deform the steps of `task`, write the partial result, return its path."""
+def deform_task(task, parts, options, with_stats, threads):
+    """Worker: deform the steps of `task`, write the partial result into the folder `parts`
+    (the run's own), return its path."""
     _, steps, groups = _deform(task, options, with_stats, threads)
-    return write_partial(out_path, steps, groups)
+    return write_partial(parts, steps, groups)
 
 
-def deform_file_task(task, out_path, options, with_stats, threads, overwrite):
+def deform_file_task(task, out_path, options, with_stats, threads):
     """Worker: deform a whole file (`task` without a range) and write its result itself.
 
-    Returns the per-step arrays without ``deformed`` (the summary the driver prints):
-    positions never travel back through the scheduler, and the result files of several
-    inputs are written (compressed) by the workers in parallel.
+    `out_path` lies in the run's own folder (`deform_many` moves it to its name once every
+    task succeeded). Returns the per-step arrays without ``deformed`` (the summary the
+    driver prints): positions never travel back through the scheduler, and the result
+    files of several inputs are written (compressed) by the workers in parallel.
     """
     seq, steps, groups = _deform(task, options, with_stats, threads)
-    _write_output(task.path, out_path, seq, steps, groups, options, overwrite)
+    _write_output(task.path, out_path, seq, steps, groups, options)
     return _light(steps)
 
 
-def merge_task(path, out_path, parts, options, overwrite):
-    """Worker: merge the partial results of `path`'s frame ranges and write its result."""
+def merge_task(path, out_path, parts, options):
+    """Worker: merge the partial results of `path`'s frame ranges, write its result to
+    `out_path` (in the run's own folder) and remove those partial results."""
     from ..formats import read_sequence
 
     steps, groups = merge_partials(sorted(parts))
     seq = read_sequence(path, format=options.get("format"))
-    _write_output(path, out_path, seq, steps, groups, options, overwrite)
-    shutil.rmtree(parts_dir(out_path), ignore_errors=True)
+    _write_output(path, out_path, seq, steps, groups, options)
+    for p in parts:  # written by this run's range tasks
+        os.unlink(p)
     return _light(steps)
 
 
@@ -74,26 +80,30 @@ def _light(steps) -> dict:
     return {k: v for k, v in steps.items() if k != "deformed"}
 
 
-def _write_output(path, out_path, seq, steps, groups, options, overwrite):
-    """The result of `path` as a serial ``penfree deform`` writes it."""
+def _write_output(path, out_path, seq, steps, groups, options):
+    """The result of `path` as a serial ``penfree deform`` writes it (into the run's folder)."""
     from ..core.pipeline.deform import result_attrs
     from ..formats.result import write_result
 
+    if not os.path.isdir(os.path.dirname(out_path)):  # the run stopped and removed its folder: do not remake it
+        raise FileNotFoundError(f"the run's folder {os.path.dirname(out_path)} is gone (the run stopped)")
     opts = _options_of(options, seq, options.get("frames"))
     attrs = result_attrs(path, opts, weights="weights" if seq.weights is not None else None)
-    write_result(out_path, seq, steps, attrs, groups=groups, overwrite=overwrite)
+    write_result(out_path, seq, steps, attrs, groups=groups, overwrite=False)
 
 
-def deform_many(specs, outdir, *, options, overwrite=False, with_stats=False, workers=None, scheduler=None,
+def deform_many(specs, output, *, options, overwrite=False, with_stats=False, workers=None, scheduler=None,
                 threads=None, progress=None, on_total=None) -> list:
-    """Deform every input on Dask; write ``<outdir>/<stem>.h5`` per input.
+    """Deform every input on Dask; write `output` for one input, else ``<output>/<stem>.h5``.
 
     Parameters
     ----------
     specs : list of str
         Files, directories or glob patterns.
-    outdir : str
-        Output directory (created if missing).
+    output : str
+        One input file (a single spec naming it): its result file, as a serial run.
+        Several inputs (several specs, a directory of recordings or a pattern): the
+        output directory (created if missing); a name ending in ``.h5`` is refused.
     options : dict
         ``model``, ``projection``, ``margin``, ``thickness``, ``frames`` ((start, stop)
         or None), ``per_vertex``, ``format`` as for `deform_sequence` / the CLI.
@@ -104,83 +114,136 @@ def deform_many(specs, outdir, *, options, overwrite=False, with_stats=False, wo
     -------
     list of (input, output, steps) in input order; `steps` without ``deformed``.
 
+    Raises
+    ------
+    InputError
+        Before any task: an output that exists (without `overwrite`) or is an input, an
+        input whose layout, topology or attributes do not validate as a serial run reads
+        them (`_check_input`), an output directory that cannot be created or
+        written. During the run: the failed task's file and frame range, in one line.
+
     Notes
     -----
-    A file that is one task is deformed and written by that task; a file split into
-    frame ranges is written by one more task, which merges the ranges' partial
-    results once they are done. Every result is written atomically; if a task fails
-    or the run is interrupted, the results of the files already finished stay (each
-    complete); no partial result stays, and on a local cluster no temporary file of a
-    result that a stopped worker was writing.
+    The run works in a folder of its own, a new ``.pfXXXXXXXX.tmp`` in the output
+    directory: a file that is one task is deformed and written there by that task; a
+    file split into frame ranges gets a ``<stem>.parts`` folder there for its ranges'
+    partial results, which one more task merges once they are done. Only when every
+    task succeeded are the results moved to their names, together and atomically
+    (`penfree.formats.atomic`). If anything fails or the run is interrupted, no output
+    appears; the run's folder and the directories it created are removed, and nothing
+    else: no other file or folder in the output directory is touched.
     """
-    from ..formats.atomic import check_output
+    from ..formats import check_outputs, input_files
+    from ..formats.atomic import check_file_name
 
     inputs = expand_inputs(specs)
-    if os.path.exists(outdir) and not os.path.isdir(outdir):
-        raise InputError(f"-o {outdir}: with several inputs -o names a directory; got an existing file")
-    outs = output_paths(inputs, outdir)
+    outs = deform_outputs(specs, inputs, output)
+    fmt = options.get("format")
     for o in outs:
-        check_output(o, overwrite, inputs=inputs)
-    threads = threads or 1
-    before = _temporaries(outdir)
-    done = False
+        check_file_name(o)
+    check_outputs(outs, [f for p in inputs for f in input_files(p, fmt)], overwrite)
+    for p in inputs:  # a bad layout, topology or attribute fails here, before a cluster starts
+        _check_input(p, fmt)
+    outdir = os.path.dirname(os.path.abspath(outs[0]))
+    created = _make_dirs(outdir)
     try:
-        results, index, final = _run(c_args=(workers, scheduler), outdir=outdir, inputs=inputs, outs=outs, options=options,
-                                     with_stats=with_stats, threads=threads, overwrite=overwrite,
-                                     progress=progress, on_total=on_total)
-        done = True
-    finally:
-        if not done and scheduler is None:
-            # The local cluster is closed, its workers are gone: a result a worker was
-            # writing when the run stopped (failure, Ctrl-C) left its temporary file.
-            for name in _temporaries(outdir) - before:
-                _remove(os.path.join(outdir, name))
+        stage = _own_folder(outdir)
+        try:
+            results, index, final = _run(c_args=(workers, scheduler), stage=stage, inputs=inputs, outs=outs,
+                                         options=options, with_stats=with_stats, threads=threads or 1,
+                                         progress=progress, on_total=on_total)
+            _commit([os.path.join(stage, os.path.basename(o)) for o in outs], outs, overwrite)
+        finally:  # the run's own folder (on a local cluster its workers are gone by now)
+            shutil.rmtree(stage, ignore_errors=True)
+    except BaseException:
+        _remove_dirs(created)
+        raise
     return [(path, out, results[index[f.key]]) for path, out, f in zip(inputs, outs, final)]
 
 
-def _temporaries(outdir) -> set:
+def _check_input(path, fmt):
+    """Read and validate `path` as a serial run does, an HDF5 file's first two frames only.
+
+    The driver must not read a long recording whole (tens of thousands of frames need not
+    fit in its memory, and the reads would be serial): its range tasks read the frames
+    they use, each validated as read, and a frame that fails fails its task, which
+    leaves no output (`deform_many`)."""
+    from ..formats import detect_format, read_sequence
+
+    if (fmt or detect_format(path)) == "hdf5":
+        read_sequence(path, format="hdf5", frame_window=(0, 2))
+    else:
+        read_sequence(path, format=fmt)
+
+
+def _make_dirs(outdir) -> list:
+    """Create `outdir` and its missing parents; those created, deepest first."""
+    missing, p = [], outdir
+    while not os.path.isdir(p) and os.path.dirname(p) != p:
+        missing.append(p)
+        p = os.path.dirname(p)
+    try:
+        os.makedirs(outdir, exist_ok=True)
+    except OSError as exc:
+        _remove_dirs(missing)
+        raise InputError(f"cannot create output directory {outdir}: {exc.strerror or exc}") from None
+    return missing
+
+
+def _remove_dirs(created):
+    for d in created:  # only if still empty
+        try:
+            os.rmdir(d)
+        except OSError:
+            pass
+
+
+def _own_folder(outdir) -> str:
+    """A new folder for this run in `outdir` (penfree's temporary name, unique to the run)."""
     from ..formats.atomic import TMP_PREFIX, TMP_SUFFIX
 
-    if not os.path.isdir(outdir):
-        return set()
-    return {n for n in os.listdir(outdir) if n.startswith(TMP_PREFIX) and n.endswith(TMP_SUFFIX)}
-
-
-def _remove(path):
     try:
-        os.unlink(path)
-    except OSError:
-        pass
+        return tempfile.mkdtemp(prefix=TMP_PREFIX, suffix=TMP_SUFFIX, dir=outdir)
+    except OSError as exc:
+        raise InputError(f"cannot write in output directory {outdir}: {exc.strerror or exc}") from None
 
 
-def _run(c_args, outdir, inputs, outs, options, with_stats, threads, overwrite, progress, on_total):
-    """Submit and gather the tasks of `deform_many`; ``(results, index, final)``."""
+def _commit(staged, outs, overwrite):
+    """Move the results `staged` in the run's folder to `outs`, all or none."""
+    from ..formats.atomic import atomic_file, write_phase
+
+    with write_phase():  # made visible together at its end; any failure removes them all
+        for src, out in zip(staged, outs):
+            with atomic_file(out, overwrite=overwrite) as tmp:
+                os.replace(src, tmp)
+
+
+def _run(c_args, stage, inputs, outs, options, with_stats, threads, progress, on_total):
+    """Submit and gather the tasks of `deform_many` (results into `stage`); ``(results, index, final)``."""
     with client(*c_args) as c:
         tasks = plan(inputs, n_workers_of(c), options.get("frames"))
-        os.makedirs(outdir, exist_ok=True)
         futures, labels, final = [], [], []
         for path, out in zip(inputs, outs):
+            staged = os.path.join(stage, os.path.basename(out))
             mine = [t for t in tasks if t.path == path]
             if len(mine) == 1 and mine[0].lo is None:
-                fut = c.submit(deform_file_task, mine[0], out, options, with_stats, threads, overwrite,
+                fut = c.submit(deform_file_task, mine[0], staged, options, with_stats, threads,
                                pure=False, key=new_key())
                 labels.append(mine[0].label())
             else:
-                parts = [c.submit(deform_task, t, out, options, with_stats, threads, pure=False, key=new_key())
+                parts_dir = os.path.splitext(staged)[0] + ".parts"
+                os.mkdir(parts_dir)
+                parts = [c.submit(deform_task, t, parts_dir, options, with_stats, threads, pure=False, key=new_key())
                          for t in mine]
                 futures.extend(parts)
                 labels.extend(t.label() for t in mine)
-                fut = c.submit(merge_task, path, out, parts, options, overwrite, pure=False, key=new_key())
+                fut = c.submit(merge_task, path, staged, parts, options, pure=False, key=new_key())
                 labels.append(f"{path} (merging its frame ranges)")
             futures.append(fut)
             final.append(fut)
         if on_total is not None:
             on_total(len(futures))
-        try:
-            results = gather(futures, labels, progress)
-        finally:  # partial results never outlive the run, merged or not
-            for o in outs:
-                shutil.rmtree(parts_dir(o), ignore_errors=True)
+        results = gather(futures, labels, progress)
     return results, {f.key: k for k, f in enumerate(futures)}, final
 
 

@@ -14,6 +14,8 @@ from ..errors import InputError
 
 #: Extensions a directory input expands to (the primary format).
 DIRECTORY_PATTERNS = ("*.h5", "*.hdf5")
+#: An ``-o`` ending so names a result file, never a directory of results.
+FILE_EXTENSIONS = (".h5", ".hdf5")
 #: Tasks per worker the partitioner aims for (balance without tiny tasks).
 TASKS_PER_WORKER = 2
 #: A frame range holds at least this many steps.
@@ -61,6 +63,38 @@ def is_scaleout(specs, workers=None, scheduler=None) -> bool:
     if os.path.isdir(spec):
         return any(glob.glob(os.path.join(glob.escape(spec), pat)) for pat in DIRECTORY_PATTERNS)
     return not os.path.exists(spec) and glob.has_magic(spec)
+
+
+def one_input(specs, inputs) -> bool:
+    """True when `specs` name one input as such: one file (or mesh sequence), not a
+    directory of recordings or a pattern, which stand for several inputs."""
+    return len(specs) == 1 and inputs == [os.fspath(specs[0])]
+
+
+def deform_outputs(specs, inputs, output) -> list:
+    """The result file of each input of ``deform``: `output` itself for one input (as a
+    serial run), ``<output>/<stem>.h5`` for several (`output_paths`).
+
+    Raises
+    ------
+    InputError
+        One input and `output` is a directory; several and `output` is an existing
+        file, or a name ending in ``.h5`` / ``.hdf5`` that is not an existing directory.
+    """
+    output = os.fspath(output)
+    if one_input(specs, inputs):
+        if os.path.isdir(output) or output.endswith(("/", os.sep)):
+            raise InputError(f"-o {output} is a directory; with one input -o names the result file (a directory "
+                             f"only with several inputs)")
+        return [output]
+    many = f"{len(inputs)} inputs" if len(specs) > 1 or len(inputs) > 1 else f"{specs[0]} (a directory or pattern)"
+    if os.path.lexists(output) and not os.path.isdir(output):
+        raise InputError(f"-o {output}: {many} need an output directory (<dir>/<stem>.h5 each); "
+                         f"got an existing file")
+    if not os.path.isdir(output) and output.lower().endswith(FILE_EXTENSIONS):
+        raise InputError(f"-o {output}: {many} need an output directory (<dir>/<stem>.h5 each); got a result "
+                         f"file name (give one input file to write one result file)")
+    return output_paths(inputs, output)
 
 
 def output_paths(inputs, outdir) -> list:
