@@ -223,7 +223,11 @@ def _link_new(tmp: str, path: str) -> None:
             os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
         except FileExistsError:
             raise _exists_error(path) from None
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except OSError:
+            _unlink(path)  # our own empty claim
+            raise
     else:
         os.unlink(tmp)
 
@@ -266,10 +270,14 @@ def atomic_file(path, overwrite: bool = False):
         os.close(fd)
 
         def commit():
-            if overwrite:
-                os.replace(tmp, path)
-            else:
-                _link_new(tmp, path)
+            try:
+                if overwrite:
+                    os.replace(tmp, path)
+                else:
+                    _link_new(tmp, path)
+            except OSError as exc:
+                keep = "the existing file is unchanged" if os.path.lexists(path) else "nothing was written"
+                raise InputError(f"cannot write output {path}: {_reason(exc)}; {keep}") from None
             _Phase.committed.append(path)
             return None if overwrite else (lambda: (_unlink(path), _Phase.committed.remove(path)))
 
@@ -281,6 +289,16 @@ def atomic_file(path, overwrite: bool = False):
 def _unlink(p):
     with suppress(OSError):
         os.unlink(p)
+
+
+def _reason(exc: OSError) -> str:
+    return exc.strerror or str(exc)
+
+
+def _strip_sep(path: str) -> str:
+    """`path` without trailing separators (``link/`` names the symlink ``link``, not its target)."""
+    seps = os.sep + (os.altsep or "")
+    return path.rstrip(seps) or path[:1]
 
 
 def _make_parents(parent: str) -> list:
@@ -313,8 +331,8 @@ def atomic_dir(path, overwrite: bool = False):
     tmp : str
         An empty directory (``.pfXXXXXXXX.tmp``) in the parent of `path`.
     """
-    path = os.path.abspath(os.fspath(path))
-    if os.path.lexists(path) and not os.path.isdir(path):
+    path = os.path.abspath(_strip_sep(os.fspath(path)))
+    if os.path.islink(path) or (os.path.lexists(path) and not os.path.isdir(path)):
         raise InputError(f"output {path} exists and is not a directory")
     if not overwrite and os.path.lexists(path):
         raise _exists_error(path)
@@ -330,19 +348,21 @@ def atomic_dir(path, overwrite: bool = False):
 
         def commit():
             if os.path.lexists(path) and overwrite:
-                # Two renames, never a moment without either the old or the new tree.
-                old = tempfile.mkdtemp(prefix=TMP_PREFIX, suffix=OLD_SUFFIX, dir=parent)
-                os.rmdir(old)
-                os.rename(path, old)
-                os.rename(tmp, path)
-                shutil.rmtree(old, ignore_errors=True)
+                _swap_dir(tmp, path, parent)
                 undo = None
             else:
                 try:
                     os.mkdir(path)  # exclusive claim; rename then replaces this empty directory
                 except FileExistsError:
                     raise _exists_error(path) from None
-                os.rename(tmp, path)
+                except OSError as exc:
+                    raise InputError(f"cannot create output {path}: {_reason(exc)}; nothing was written") from None
+                try:
+                    os.rename(tmp, path)
+                except OSError as exc:
+                    with suppress(OSError):
+                        os.rmdir(path)  # our own empty claim
+                    raise InputError(f"cannot write output {path}: {_reason(exc)}; nothing was written") from None
                 undo = (lambda: (shutil.rmtree(path, ignore_errors=True), _Phase.committed.remove(path)))
             _Phase.committed.append(path)
             return undo
@@ -350,6 +370,38 @@ def atomic_dir(path, overwrite: bool = False):
         _Phase.actions.append((commit, lambda: (shutil.rmtree(tmp, ignore_errors=True), _remove_dirs(created))))
         os.chmod(tmp, _umask_mode(0o777))
         yield tmp
+
+
+def _swap_dir(tmp: str, path: str, parent: str) -> None:
+    """Replace the directory `path` by `tmp`: two renames, never a moment without either tree.
+
+    A failed rename leaves the old `path` in place (InputError); the old tree is removed
+    only once the new one is in place, and a failure to remove it is reported, not ignored.
+    """
+    if os.path.islink(path) or not os.path.isdir(path):  # replaced meanwhile: never delete what we did not write
+        raise InputError(f"output {path} exists and is not a directory; nothing was written")
+    try:
+        old = tempfile.mkdtemp(prefix=TMP_PREFIX, suffix=OLD_SUFFIX, dir=parent)
+        os.rmdir(old)
+        os.rename(path, old)
+    except OSError as exc:
+        raise InputError(f"cannot replace output directory {path}: {_reason(exc)}; "
+                         f"the existing {path} is unchanged") from None
+    try:
+        os.rename(tmp, path)
+    except OSError as exc:
+        try:
+            os.rename(old, path)
+        except OSError as back:
+            raise InputError(f"cannot replace output directory {path}: {_reason(exc)}; and cannot put the "
+                             f"previous one back ({_reason(back)}): it is at {old}") from None
+        raise InputError(f"cannot replace output directory {path}: {_reason(exc)}; "
+                         f"the existing {path} is unchanged") from None
+    errors = []
+    shutil.rmtree(old, onerror=lambda fn, p, info: errors.append(f"{p}: {info[1]}"))
+    if errors:
+        raise InputError(f"wrote {path}, but cannot remove its previous version, left at {old} "
+                         f"({errors[0]}); remove it by hand")
 
 
 def _inside(child: str, parent: str) -> bool:
@@ -376,7 +428,7 @@ def check_output_dir(path, overwrite: bool = False, inputs=(), owned=None) -> No
     ------
     InputError, OutputExistsError
     """
-    path = os.fspath(path)
+    path = _strip_sep(os.fspath(path))
     for inp in inputs:
         if inp is not None and _inside(os.fspath(inp), path):
             raise InputError(f"output directory {path} contains the input {inp}; choose another output directory "

@@ -24,6 +24,7 @@ stored as ``"json:..."`` strings and decoded on read); ``penfree_format`` and
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field, replace
 
 import h5py
@@ -36,8 +37,16 @@ from ..sequence import Sequence
 from .atomic import atomic_file
 from .hdf5 import has_h5_magic, open_h5, read_attrs, read_from_h5, write_attrs, write_positions, write_to_h5
 
+#: Per-step datasets that every reader needs (SPEC section 8); others may require more
+#: (`read_result`'s `require`, e.g. ``certificate_margin`` for ``report``).
+REQUIRED_STEPS = ("frame", "A", "b", "deformed")
 #: Per-step datasets that must be numeric when present (``A`` may be NaN: per-component steps).
-NUMERIC_STEPS = ("A", "b", "deformed", "certificate_margin", "margin_required", "start_gap")
+NUMERIC_STEPS = ("A", "b", "deformed", "certificate_margin", "margin_required", "start_gap", "time_fit_s", "rank",
+                 "start_intersections")
+#: Prefixes of further numeric per-step datasets (residual summaries, SPEC section 8).
+NUMERIC_PREFIXES = ("residual_", "baseline_")
+#: Per-step datasets of names (str).
+TEXT_STEPS = ("model", "projection")
 #: Top-level names a result file uses for the sequence itself; extra groups must avoid them.
 SEQUENCE_NAMES = ("positions", "edges", "faces", "weights", "components", "obstacles", "steps")
 
@@ -93,11 +102,22 @@ def _write_array(g, name, value, deformed_dtype=None):
         g.create_dataset(name, data=a)
 
 
-def _check_steps(steps: dict, T: int, N: int, where: str) -> int:
-    """Shapes and ranges of the per-step arrays; returns S. Messages name ``where:/steps/<name>``."""
-    for key in ("frame", "A", "b", "deformed"):
+def _kind(value) -> str:
+    return "a group" if isinstance(value, dict) else f"{np.shape(value)} {np.asarray(value).dtype}"
+
+
+def _check_steps(steps: dict, T: int, N: int, where: str, require=()) -> int:
+    """Presence, shapes, dtypes and ranges of the per-step arrays; returns S.
+
+    Messages name ``where:/steps/<name>`` and, for a bad value, the step's frame.
+    """
+    for key in (*REQUIRED_STEPS, *require):
         if key not in steps:
             raise FormatError(f"missing dataset steps/{key} in {where}:/steps/{key}")
+    for key, value in steps.items():
+        if isinstance(value, dict) and (key in (*REQUIRED_STEPS, *NUMERIC_STEPS, *TEXT_STEPS)
+                                        or key.startswith(NUMERIC_PREFIXES)):
+            raise FormatError(f"steps/{key} must be a dataset; got a group in {where}:/steps/{key}")
     frame = np.asarray(steps["frame"])
     if frame.ndim != 1 or (frame.size and frame.dtype.kind not in "iu"):
         raise FormatError(f"steps/frame must be (S,) integer; got {frame.shape} {frame.dtype} in {where}:/steps/frame")
@@ -105,20 +125,61 @@ def _check_steps(steps: dict, T: int, N: int, where: str) -> int:
     if S and (frame.min() < 1 or frame.max() > T - 1):
         bad = int(frame.min() if frame.min() < 1 else frame.max())
         raise FormatError(f"steps/frame must be in [1, {T - 1}] for {T} frames; found {bad} in {where}:/steps/frame")
+    if S > 1 and not (np.diff(frame.astype(np.int64)) > 0).all():
+        k = int(np.flatnonzero(np.diff(frame.astype(np.int64)) <= 0)[0])
+        raise FormatError(f"steps/frame must be strictly increasing; found {int(frame[k])} then {int(frame[k + 1])} "
+                          f"in {where}:/steps/frame")
     expect = {"A": (S, 3, 3), "b": (S, 3), "deformed": (S, N, 3)}
     for key, shape in expect.items():
         got = np.shape(steps[key])
         if got != shape:
             raise FormatError(f"steps/{key} must be {shape}; got {got} in {where}:/steps/{key}")
-    for key in NUMERIC_STEPS:
-        if key in steps and (isinstance(steps[key], dict) or np.asarray(steps[key]).dtype.kind not in "iuf"):
-            got = "a group" if isinstance(steps[key], dict) else np.asarray(steps[key]).dtype
-            raise FormatError(f"steps/{key} must be numeric; got {got} in {where}:/steps/{key}")
+    for key, value in steps.items():
+        if key in NUMERIC_STEPS or key.startswith(NUMERIC_PREFIXES):
+            if np.asarray(value).dtype.kind not in "iuf":
+                raise FormatError(f"steps/{key} must be numeric; got {np.asarray(value).dtype} in {where}:/steps/{key}")
+        elif key in TEXT_STEPS and np.asarray(value).dtype.kind not in "USO":
+            raise FormatError(f"steps/{key} must be (S,) strings; got {np.asarray(value).dtype} "
+                              f"in {where}:/steps/{key}")
     for key, value in steps.items():
         shape = np.shape(value)
-        if not isinstance(value, dict) and len(shape) >= 1 and shape[0] != S:
+        if not isinstance(value, dict) and (len(shape) < 1 or shape[0] != S):
             raise FormatError(f"steps/{key} must have one row per step ({S}); got {shape} in {where}:/steps/{key}")
+    _check_maps(np.asarray(steps["A"], dtype=np.float64), np.asarray(steps["b"], dtype=np.float64), frame, where)
     return S
+
+
+def _check_maps(A, b, frame, where) -> None:
+    """Each step's map is finite, or ``A`` is all NaN (a per-component step: its maps are in
+    ``component_maps/``, SPEC section 8) with ``b`` finite or all NaN."""
+    for k in range(len(frame)):
+        fin_a, fin_b = np.isfinite(A[k]).all(), np.isfinite(b[k]).all()
+        if fin_a and fin_b:
+            continue
+        if np.isnan(A[k]).all() and (fin_b or np.isnan(b[k]).all()):
+            continue
+        key = "b" if fin_a or np.isnan(A[k]).all() else "A"
+        raise FormatError(f"steps/{key} must be finite (steps/A all NaN marks a per-component step); "
+                          f"step {k} (frame {int(frame[k])}) holds NaN or Inf in {where}:/steps/{key}")
+
+
+def _check_groups(groups: dict, S: int, where: str) -> None:
+    """The optional groups that index into something: ``selection/chosen`` (S,) in [-1, C - 1]."""
+    sel = groups.get("selection")
+    if not isinstance(sel, dict) or "chosen" not in sel:
+        return
+    chosen = sel["chosen"]
+    if isinstance(chosen, dict) or np.shape(chosen) != (S,) or (S and np.asarray(chosen).dtype.kind not in "iu"):
+        raise FormatError(f"selection/chosen must be ({S},) integer; got {_kind(chosen)} in {where}:/selection/chosen")
+    cand = sel.get("candidates")
+    C = None if cand is None or isinstance(cand, dict) else int(np.size(cand))
+    chosen = np.asarray(chosen, dtype=np.int64)
+    bad = (chosen < -1) | (chosen >= C if C is not None else False)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        hi = f"{C - 1}] ({C} candidates)" if C is not None else "...]"
+        raise FormatError(f"selection/chosen must be in [-1, {hi}; found {int(chosen[k])} at step {k} "
+                          f"in {where}:/selection/chosen")
 
 
 def write_result(path, seq: Sequence, steps: dict, attrs: dict, groups: dict | None = None,
@@ -195,19 +256,33 @@ def _read_deformed(ds, where) -> np.ndarray:
     return out
 
 
-def read_result(path) -> DeformResult:
+def read_result(path, require=()) -> DeformResult:
     """Read and validate a deform result file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    require : iterable of str
+        Per-step datasets needed beyond ``frame``, ``A``, ``b`` and ``deformed``
+        (e.g. ``("certificate_margin",)`` for a report).
 
     Raises
     ------
     FormatError
-        Not a result file (no ``steps/frame``), or a per-step dataset with the wrong
-        shape, range or non-finite values; the message names ``file:/steps/<name>``.
+        Not a result file (no ``steps/frame``), a missing required dataset, or a
+        per-step dataset with the wrong shape, dtype, range or non-finite values;
+        the message names ``file:/steps/<name>`` (and the step's frame for a bad value).
     """
     where = str(path)
     with open_h5(path) as f:
+        link = f.get("steps", getlink=True)
+        if link is None:
+            raise FormatError(f"{where} is not a deform result; missing dataset steps/frame in {where}:/steps/frame")
         g = f.get("steps")
-        if not isinstance(g, h5py.Group) or "frame" not in g:
+        if not isinstance(g, h5py.Group):
+            got = "a broken link" if g is None else "a dataset"
+            raise FormatError(f"steps must be a group of per-step datasets; got {got} in {where}:/steps")
+        if g.get("frame", getlink=True) is None:
             raise FormatError(f"{where} is not a deform result; missing dataset steps/frame in {where}:/steps/frame")
         seq = read_from_h5(f, where)
         seq.validate()
@@ -217,20 +292,29 @@ def read_result(path) -> DeformResult:
         attrs = read_attrs(f, where)
         groups = {k: _read_group(obj, where) for k, obj in f.items()
                   if isinstance(obj, h5py.Group) and k not in SEQUENCE_NAMES}
-    _check_steps(steps, seq.n_frames, seq.n_vertices, where)
+    S = _check_steps(steps, seq.n_frames, seq.n_vertices, where, require=tuple(require))
+    _check_groups(groups, S, where)
     steps["frame"] = steps["frame"].astype(np.int64)
     return DeformResult(sequence=seq, steps=steps, attrs=attrs, groups=groups, origin=where)
 
 
 def is_result_file(path) -> bool:
-    """True if `path` is a readable HDF5 file with ``steps/frame`` (never raises)."""
-    try:
-        if not has_h5_magic(path):
-            return False
-        with h5py.File(path, "r") as f:
-            return isinstance(f.get("steps/frame"), h5py.Dataset)
-    except Exception:  # any unreadable file is simply not a result file
+    """True if `path` is an HDF5 file with a top-level ``steps`` member: a result, or a broken one.
+
+    False for a missing file, a directory or a file without the HDF5 signature (the
+    sequence readers report those). A file with ``steps`` that is no valid result is
+    still True, so that `read_result` names what is wrong instead of the file being
+    read as a raw sequence.
+
+    Raises
+    ------
+    FormatError
+        A truncated or damaged HDF5 file (as `open_h5` reports it).
+    """
+    if not os.path.isfile(path) or not has_h5_magic(path):
         return False
+    with open_h5(path) as f:
+        return f.get("steps", getlink=True) is not None
 
 
 def deformed_sequence(result: DeformResult) -> Sequence:

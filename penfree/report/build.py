@@ -24,7 +24,8 @@ report.json key reference (schema ``penfree_report`` = 1; NaN and inf are writte
   - ``file`` (path as given), ``name`` (base name; the key used to match a baseline);
   - ``scene``: ``kind``, ``n_vertices``, ``n_frames``, ``n_steps``, ``thickness``,
     ``dtype``; ``deform_options``: the result file's attributes;
-  - ``stats_source``: ``file`` (its ``stats/`` group) or ``computed``;
+  - ``stats_source``: ``file`` (its ``stats/`` group) or ``computed``; ``stats_note`` (only
+    when a complete ``stats/`` group was unusable, e.g. not numeric): why it was ignored;
   - ``summary``: `penfree.core.trust.summary.summarize` output: ``n_steps``, ``n_steps_next``,
     ``fit_ms_mean``, ``fit_ms_median``, ``hit_rate_gain_next``, ``hit_rate_gain_pred``
     (fractions),
@@ -63,6 +64,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 
 import numpy as np
 
@@ -131,8 +133,16 @@ def build_file_report(path, result, stats, *, ladder=None, cd_share=DEFAULT_CD_S
     }
 
 
+#: Per-step datasets a report needs beyond those every reader needs.
+REPORT_REQUIRES = ("certificate_margin",)
+
+
 def open_result(path):
-    """Read a ``penfree deform`` output; InputError naming the file if it is not one."""
+    """Read a ``penfree deform`` output; InputError naming the file if it is not one.
+
+    A damaged HDF5 file, or a result missing a dataset the report needs
+    (`REPORT_REQUIRES`), is a FormatError naming ``file:/dataset``.
+    """
     from ..formats.result import is_result_file, read_result
 
     path = os.fspath(path)
@@ -141,7 +151,7 @@ def open_result(path):
     if not is_result_file(path):
         raise InputError(f"{path} is not a penfree deform output (no dataset steps/frame in {path}:/steps/frame); "
                          f"run `penfree deform {path} -o deformed.h5` and report on its output")
-    return read_result(path)
+    return read_result(path, require=REPORT_REQUIRES)
 
 
 def select_steps(result, frames=None):
@@ -173,14 +183,46 @@ def select_steps(result, frames=None):
     return dataclasses.replace(result, steps=sub(result.steps), groups=groups)
 
 
-def stored_stats(result, replay=False):
-    """The file's ``stats/`` group if it holds every key `compute_stats` would give, else None."""
+def _stats_problem(st, key, S) -> str | None:
+    """Why the stored ``stats/<key>`` cannot be used (None if it can)."""
+    v = st[key]
+    if isinstance(v, dict):
+        return f"stats/{key} is a group, expected a dataset"
+    a = np.asarray(v)
+    if a.dtype.kind not in "biuf":
+        return f"stats/{key} must be numeric; got {a.dtype}"
+    want = 2 if key.startswith("r_hist_") else 1
+    if a.ndim != want or a.shape[0] != S or (want == 2 and a.shape[1] != R_HIST_EDGES.size - 1):
+        shape = f"({S}, {R_HIST_EDGES.size - 1})" if want == 2 else f"({S},)"
+        return f"stats/{key} must be {shape}; got {a.shape}"
+    return None
+
+
+def stored_stats_checked(result, replay=False) -> tuple:
+    """``(stats, note)``: the file's ``stats/`` group if complete and usable, else None.
+
+    `note` says why a complete ``stats/`` group was ignored (a non-numeric value, a
+    wrong length, frames other than ``steps/frame``), so that the report can say the
+    statistics were recomputed; None when there was nothing to ignore.
+    """
     st = result.groups.get("stats")
-    if not isinstance(st, dict) or not set(stats_keys(replay)) <= set(st):
-        return None
-    if np.shape(st["frame"]) != np.shape(result.steps["frame"]) or np.any(st["frame"] != result.steps["frame"]):
-        return None
-    return {k: np.asarray(st[k]) for k in stats_keys(replay)}
+    keys = stats_keys(replay)
+    if not isinstance(st, dict) or not set(keys) <= set(st):
+        return None, None
+    S = int(np.size(result.steps["frame"]))
+    for k in keys:
+        problem = _stats_problem(st, k, S)
+        if problem is not None:
+            return None, f"{problem} in {result.origin}:/stats/{k}"
+    if np.any(np.asarray(st["frame"]) != np.asarray(result.steps["frame"])):
+        return None, f"stats/frame differs from steps/frame in {result.origin}:/stats/frame"
+    return {k: np.asarray(st[k]) for k in keys}, None
+
+
+def stored_stats(result, replay=False):
+    """The file's ``stats/`` group if it holds every key `compute_stats` would give, each
+    numeric with one row per step and the same frames as ``steps/frame``; else None."""
+    return stored_stats_checked(result, replay)[0]
 
 
 def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAULT_FRAME_MS, replay=False,
@@ -205,7 +247,7 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
         Options of the real-client replay (`penfree.report.client.client_section`); its
         section is stored under ``client``.
     """
-    stats = stored_stats(result, replay)
+    stats, note = stored_stats_checked(result, replay)
     source = "file"
     if stats is None:
         stats, source = compute_stats(result, replay=replay, progress=progress), "computed"
@@ -221,6 +263,8 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
                            contact_radius=seq.contact_radius)
     rep = build_file_report(path, result, stats, ladder=lad, cd_share=cd_share, frame_ms=frame_ms,
                             stats_source=source)
+    if note is not None:
+        rep["stats_note"] = f"stored statistics ignored and recomputed: {note}"
     if client:
         from .client import client_section
 
@@ -255,11 +299,17 @@ def load_report_json(path) -> dict:
     return data
 
 
+#: The plots `penfree.report.plots.write_plots` names: ``<stem>_<kind>.png``.
+PLOT_NAME = re.compile(r"[A-Za-z0-9_.-]+_(hit_rate|cd_passes|r_hist|ladder|client_passes)\.png")
+
+
 def report_names(outdir):
     """``name -> bool``: True for the entries of an existing report directory that penfree wrote.
 
-    Those are ``report.md``, ``report.json`` and the plots that report.json lists; a
-    directory without a penfree report.json owns nothing.
+    Those are ``report.md``, ``report.json`` and the plots that report.json lists *and*
+    that are named as penfree names its plots (`PLOT_NAME`): a name taken from the
+    file's contents alone never makes a file penfree's to delete. A directory without
+    a penfree report.json owns nothing.
     """
     try:
         with open(os.path.join(os.fspath(outdir), "report.json"), encoding="utf-8") as fh:
@@ -269,7 +319,7 @@ def report_names(outdir):
         plots = None
     if not isinstance(plots, list):
         return lambda name: False
-    owned = {"report.md", "report.json"} | {p for p in plots if isinstance(p, str) and p.endswith(".png")}
+    owned = {"report.md", "report.json"} | {p for p in plots if isinstance(p, str) and PLOT_NAME.fullmatch(p)}
     return owned.__contains__
 
 

@@ -64,12 +64,13 @@ def certificate_summary(steps, rechecked=None, seq=None) -> dict:
     that started dirty come from ``steps/start_intersections``, else are counted on
     `seq` when given.
     """
-    cm = np.asarray(steps.get("certificate_margin", []), dtype=np.float64)
+    frames = np.asarray(steps.get("frame", np.arange(np.size(steps.get("certificate_margin", [])))))
+    # No stored margin claims nothing: every step counts as not certified.
+    cm = np.asarray(steps.get("certificate_margin", np.full(frames.size, np.nan)), dtype=np.float64)
     req = np.asarray(steps.get("margin_required", np.zeros_like(cm)), dtype=np.float64)
     ok = np.isfinite(cm) & (cm >= np.where(np.isfinite(req), req, 0.0))
     if rechecked is not None:
         ok = ok & rechecked if ok.shape == rechecked.shape else np.asarray(rechecked, dtype=bool)
-    frames = np.asarray(steps.get("frame", np.arange(cm.size)))
 
     def counts(key):
         names, n = np.unique(np.asarray(steps.get(key, []), dtype=str), return_counts=True)

@@ -63,7 +63,8 @@ def _file_md(rep):
     out = [f"## {rep['name']}\n",
            f"File `{rep['file']}`: {sc['kind']} scene, {sc['n_vertices']} vertices, {sc['n_frames']} frames, "
            f"{sc['n_steps']} steps ({sm['n_steps_next']} with a next frame), thickness {_f(sc['thickness'])}. "
-           f"Statistics {'read from the file' if rep['stats_source'] == 'file' else 'computed by this report'}.\n"]
+           f"Statistics {'read from the file' if rep['stats_source'] == 'file' else 'computed by this report'}"
+           + (f" ({rep['stats_note']})" if rep.get("stats_note") else "") + ".\n"]
     opts = dict(rep.get("deform_options") or {})
     if isinstance(opts.get("options"), dict):  # deform's own options, one level down
         opts.update({f"options.{k}": v for k, v in opts.pop("options").items()})

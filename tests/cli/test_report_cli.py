@@ -194,3 +194,72 @@ def test_two_frames_no_next_frame(cli, tmp_path):
     assert fr["summary"]["deformed"]["hit_rate_pred"] == 1.0  # deformed exactly onto x_pred
     assert doc["checks"][0]["message"] == "no step with a next frame"
     assert "n/a" in (out / "report.md").read_text()
+
+
+# ---------------------------------------------------------------- failed swaps, symlinks, damaged results
+
+
+def test_overwrite_whose_rename_fails_exits_2_and_keeps_old(cli, result, tmp_path, monkeypatch):
+    # As on a mount point: the existing report directory cannot be renamed aside.
+    import errno
+
+    out = tmp_path / "rep"
+    assert cli("report", result, "-o", out, "--no-ladder", "--no-plots").exit_code == 0
+    before = {n: (out / n).read_bytes() for n in os.listdir(out)}
+    real = os.rename
+
+    def busy(src, dst, *a, **k):
+        if os.fspath(src) == str(out):
+            raise OSError(errno.EBUSY, "Device or resource busy", os.fspath(src))
+        return real(src, dst, *a, **k)
+
+    monkeypatch.setattr(os, "rename", busy)
+    r = cli("report", result, "-o", out, "--no-ladder", "--no-plots", "--overwrite", "--frame-ms", "16")
+    assert r.exit_code == 2 and "Device or resource busy" in r.stderr and str(out) in r.stderr
+    assert {n: (out / n).read_bytes() for n in os.listdir(out)} == before  # the old report, intact
+    assert sorted(os.listdir(tmp_path)) == ["rep", "res.h5"]  # no .pf*.tmp / .pf*.old
+
+
+@pytest.mark.parametrize("spelling", ["", "/"], ids=["link", "link-slash"])
+def test_symlinked_report_dir_is_refused(cli, result, tmp_path, spelling):
+    real = tmp_path / "real"
+    assert cli("report", result, "-o", real, "--no-ladder", "--no-plots").exit_code == 0
+    os.symlink("real", tmp_path / "link")
+    target = str(tmp_path / "link") + spelling  # (pathlib would drop a trailing separator)
+    r = cli("report", result, "-o", target, "--no-ladder", "--no-plots", "--overwrite")
+    assert r.exit_code == 2 and "exists and is not a directory" in r.stderr
+    assert os.path.islink(tmp_path / "link") and sorted(os.listdir(tmp_path)) == ["link", "real", "res.h5"]
+
+
+def _tampered(path, change):
+    import h5py
+
+    _result_file(path)
+    with h5py.File(path, "a") as f:
+        change(f)
+    return path
+
+
+def _truncated_result(path):
+    _result_file(path)
+    data = open(path, "rb").read()
+    with open(path, "wb") as fh:
+        fh.write(data[: len(data) * 2 // 3])
+    return path
+
+
+@pytest.mark.parametrize("make, match", [
+    (lambda p: _tampered(p, lambda f: f.__delitem__("steps/certificate_margin")),
+     "missing dataset steps/certificate_margin in {p}:/steps/certificate_margin"),
+    (_truncated_result, "{p} is a truncated or damaged HDF5 file"),
+    (lambda p: _tampered(p, lambda f: f["steps/b"].__setitem__((1, 0), np.nan)),
+     "(frame 2) holds NaN or Inf in {p}:/steps/b"),
+    (lambda p: _tampered(p, lambda f: f["steps/frame"].__setitem__(1, 1)),
+     "strictly increasing; found 1 then 1 in {p}:/steps/frame"),
+], ids=["no-certificate-margin", "truncated", "nan-in-b", "frames-repeat"])
+def test_damaged_result_exit_2_names_file_and_dataset(cli, tmp_path, make, match):
+    p = str(make(tmp_path / "bad.h5"))
+    out = tmp_path / "rep"
+    r = cli("report", p, "-o", out, "--no-ladder", "--no-plots")
+    assert r.exit_code == 2 and match.format(p=p) in r.stderr, r.output
+    assert not out.exists()

@@ -156,3 +156,41 @@ def test_bad_arguments_exit_2(cli, tmp_path, args):
     write_sequence(str(p), Sequence(positions=frames, edges=E).validate())
     r = cli("verify", str(p), *args)
     assert r.exit_code == 2
+
+
+def _cloth_result(path, change):
+    from penfree.core.pipeline.deform import deform_sequence
+    from penfree.formats.result import write_result
+
+    frames, F = cloth_frames(T=4)
+    seq = Sequence(positions=frames, faces=F, origin="cloth").validate()
+    write_result(path, seq, deform_sequence(seq).steps, {"input": "cloth"})
+    with h5py.File(path, "a") as f:
+        change(f)
+    return str(path)
+
+
+def _replace(name, make):
+    def change(f):
+        del f[name]
+        make(f)
+    return change
+
+
+BROKEN_RESULTS = {
+    "nan-in-b": (lambda f: f["steps/b"].__setitem__((1, 2), np.nan),
+                 "step 1 (frame 2) holds NaN or Inf in {p}:/steps/b"),
+    "frame-is-a-group": (_replace("steps/frame", lambda f: f.create_group("steps/frame")),
+                         "steps/frame must be a dataset; got a group in {p}:/steps/frame"),
+    "steps-is-a-dataset": (_replace("steps", lambda f: f.create_dataset("steps", data=np.arange(3))),
+                           "steps must be a group of per-step datasets; got a dataset in {p}:/steps"),
+}
+
+
+@pytest.mark.parametrize("command", ["verify", "info"])
+@pytest.mark.parametrize("case", list(BROKEN_RESULTS))
+def test_broken_result_exit_2_never_read_as_a_sequence(cli, tmp_path, case, command):
+    change, expect = BROKEN_RESULTS[case]
+    p = _cloth_result(tmp_path / "res.h5", change)
+    r = cli(command, p)
+    assert r.exit_code == 2 and expect.format(p=p) in r.stderr, r.output

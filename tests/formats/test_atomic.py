@@ -144,3 +144,100 @@ def test_writers_in_threads_do_not_share_a_write_phase(tmp_path):
         list(pool.map(write, range(16)))
     assert _listing(tmp_path) == sorted(f"out{k}.txt" for k in range(16))
     assert all((tmp_path / f"out{k}.txt").read_text() == str(k) for k in range(16))
+
+
+# ---------------------------------------------------------------- failed renames, symlinked outputs
+
+
+def _failing(monkeypatch, name, fails):
+    """Make ``os.<name>`` raise EBUSY (as on a mount point) for the call where ``fails(src, dst)``."""
+    import errno
+
+    real = getattr(os, name)
+
+    def fake(src, dst, *a, **k):
+        if fails(os.fspath(src), os.fspath(dst)):
+            raise OSError(errno.EBUSY, "Device or resource busy", os.fspath(src))
+        return real(src, dst, *a, **k)
+
+    monkeypatch.setattr(os, name, fake)
+
+
+@pytest.mark.parametrize("which", ["old-aside", "new-in", "new-in-new-dir"])
+def test_atomic_dir_failed_rename_is_an_input_error_and_keeps_old(tmp_path, monkeypatch, which):
+    out = tmp_path / "rep"
+    if which != "new-in-new-dir":
+        out.mkdir()
+        (out / "a.md").write_text("old")
+    if which == "old-aside":  # the existing directory cannot be moved (a mount point)
+        _failing(monkeypatch, "rename", lambda src, dst: src == str(out))
+    else:  # the new tree cannot be moved in
+        _failing(monkeypatch, "rename", lambda src, dst: dst == str(out) and os.path.basename(src).endswith(".tmp"))
+    busy = r"cannot (replace output directory|write output) .*rep: Device or resource busy"
+    with pytest.raises(InputError, match=busy):
+        with atomic_dir(out, overwrite=True) as tmp:
+            open(os.path.join(tmp, "b.md"), "w").write("new")
+    if which == "new-in-new-dir":
+        assert _listing(tmp_path) == []  # nothing written: no claim, no temporary
+    else:
+        assert _listing(out) == ["a.md"] and (out / "a.md").read_text() == "old"
+        assert _listing(tmp_path) == ["rep"]  # no .pf*.tmp, no .pf*.old
+
+
+def test_atomic_file_failed_replace_is_an_input_error_and_keeps_old(tmp_path, monkeypatch):
+    target = tmp_path / "out.bin"
+    target.write_text("old")
+    _failing(monkeypatch, "replace", lambda src, dst: dst == str(target))
+    with pytest.raises(InputError, match=r"cannot write output .*out.bin: Device or resource busy; the existing"):
+        with atomic_file(target, overwrite=True) as tmp:
+            open(tmp, "w").write("new")
+    assert target.read_text() == "old" and _listing(tmp_path) == ["out.bin"]
+
+
+def test_atomic_dir_old_tree_left_behind_is_reported(tmp_path, monkeypatch):
+    import penfree.formats.atomic as atomic
+
+    out = tmp_path / "rep"
+    out.mkdir()
+    (out / "a.md").write_text("old")
+    real = atomic.shutil.rmtree
+
+    def stuck(path, *a, onerror=None, **k):
+        if os.fspath(path).endswith(".old") and onerror is not None:
+            return onerror(os.unlink, os.fspath(path), (PermissionError, PermissionError(13, "denied"), None))
+        return real(path, *a, onerror=onerror, **k)
+
+    monkeypatch.setattr(atomic.shutil, "rmtree", stuck)
+    with pytest.raises(InputError, match=r"wrote .*rep, but cannot remove its previous version, left at .*\.old"):
+        with atomic_dir(out, overwrite=True) as tmp:
+            open(os.path.join(tmp, "b.md"), "w").write("new")
+    assert _listing(out) == ["b.md"]
+    left = [n for n in _listing(tmp_path) if n != "rep"]
+    assert len(left) == 1 and left[0].endswith(".old")  # named in the message, not silently left
+
+
+@pytest.mark.parametrize("spelling", ["", "/", "//"], ids=["link", "link-slash", "link-slashes"])
+def test_symlinked_output_dir_is_refused(tmp_path, spelling):
+    from penfree.formats.atomic import check_output_dir
+
+    real = tmp_path / "real"
+    real.mkdir()
+    (real / "a.md").write_text("old")
+    os.symlink("real", tmp_path / "link")
+    target = str(tmp_path / "link") + spelling  # (pathlib would drop a trailing separator)
+    with pytest.raises(InputError, match="exists and is not a directory"):
+        check_output_dir(target, overwrite=True, owned=lambda n: True)
+    with pytest.raises(InputError, match="exists and is not a directory"):
+        with atomic_dir(target, overwrite=True) as tmp:
+            open(os.path.join(tmp, "b.md"), "w").write("new")  # pragma: no cover
+    assert os.path.islink(tmp_path / "link") and os.readlink(tmp_path / "link") == "real"
+    assert _listing(real) == ["a.md"] and _listing(tmp_path) == ["link", "real"]
+
+
+def test_trailing_separator_on_a_real_dir_still_works(tmp_path):
+    out = tmp_path / "rep"
+    out.mkdir()
+    (out / "a.md").write_text("old")
+    with atomic_dir(str(out) + os.sep, overwrite=True) as tmp:
+        open(os.path.join(tmp, "b.md"), "w").write("new")
+    assert _listing(out) == ["b.md"] and _listing(tmp_path) == ["rep"]

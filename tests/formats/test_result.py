@@ -136,3 +136,115 @@ def test_write_failure_midway_leaves_nothing(tmp_path, rng, monkeypatch, exc):
     with pytest.raises(exc):
         write_result(tmp_path / "r.h5", seq, steps, attrs, groups=groups)
     assert os.listdir(tmp_path) == []
+
+
+# --- what every reader relies on: presence, dtypes, order, finiteness, named file:/dataset -----
+
+def _nan_at(shape, index):
+    a = np.zeros(shape)
+    a[index] = np.nan
+    return a
+
+
+@pytest.mark.parametrize("name,value,expect", [
+    ("steps/frame", np.array([1, 3, 2, 4]),
+     "steps/frame must be strictly increasing; found 3 then 2 in {p}:/steps/frame"),
+    ("steps/frame", np.array([1, 2, 2, 4]), "found 2 then 2 in {p}:/steps/frame"),
+    ("steps/b", _nan_at((4, 3), (1, 0)), "step 1 (frame 2) holds NaN or Inf in {p}:/steps/b"),
+    ("steps/A", _nan_at((4, 3, 3), (3, 2, 2)), "step 3 (frame 4) holds NaN or Inf in {p}:/steps/A"),
+    ("steps/A", np.full((4, 3, 3), np.inf), "step 0 (frame 1) holds NaN or Inf in {p}:/steps/A"),
+    ("steps/model", np.arange(4), "steps/model must be (S,) strings; got int64 in {p}:/steps/model"),
+    ("steps/certificate_margin", np.array([b"x", b"y", b"z", b"w"]), "steps/certificate_margin must be numeric"),
+    ("steps/residual_next_rms", np.array(["1", "2", "3", "4"], dtype=object),
+     "steps/residual_next_rms must be numeric"),
+    ("steps/rank", np.float64(3.0), "steps/rank must have one row per step (4); got ()"),
+], ids=["frame-unsorted", "frame-repeated", "b-nan", "A-partly-nan", "A-inf", "model-not-text", "margin-bytes",
+        "residual-text", "scalar-column"])
+def test_read_validates_more(tmp_path, rng, name, value, expect):
+    seq, steps, attrs, _ = _inputs(rng)
+    p = str(tmp_path / "r.h5")
+    write_result(p, seq, steps, attrs)
+    _tamper(p, name, value)
+    with pytest.raises(FormatError) as err:
+        read_result(p)
+    assert expect.format(p=p) in str(err.value)
+
+
+def test_per_component_steps_may_be_all_nan(tmp_path, rng):
+    # SPEC: steps/A is *the* map applied; a per-component step has none (A all NaN).
+    seq, steps, attrs, _ = _inputs(rng)
+    steps["A"][2], steps["b"][2] = np.nan, np.nan
+    steps["A"][3] = np.nan
+    p = tmp_path / "r.h5"
+    write_result(p, seq, steps, attrs)
+    assert np.isnan(read_result(p).steps["A"][2:]).all()
+    steps["b"][3, 1] = np.nan  # a part-NaN b is no per-component marker
+    with pytest.raises(FormatError, match=r"step 3 \(frame 4\) holds NaN or Inf in .*r\.h5:/steps/b"):
+        write_result(p, seq, steps, attrs, overwrite=True)
+
+
+@pytest.mark.parametrize("make,expect", [
+    (lambda f: (f.__delitem__("steps/frame"), f.create_group("steps/frame")),
+     "steps/frame must be a dataset; got a group in {p}:/steps/frame"),
+    (lambda f: (f.__delitem__("steps/A"), f.create_group("steps/A")),
+     "steps/A must be a dataset; got a group in {p}:/steps/A"),
+    (lambda f: (f.__delitem__("steps"), f.create_dataset("steps", data=np.arange(4))),
+     "steps must be a group of per-step datasets; got a dataset in {p}:/steps"),
+    (lambda f: f.__delitem__("steps/frame"), "missing dataset steps/frame in {p}:/steps/frame"),
+], ids=["frame-group", "A-group", "steps-dataset", "frame-missing"])
+def test_a_steps_member_makes_a_broken_result_not_a_sequence(tmp_path, rng, make, expect):
+    seq, steps, attrs, _ = _inputs(rng)
+    p = str(tmp_path / "r.h5")
+    write_result(p, seq, steps, attrs)
+    with h5py.File(p, "a") as f:
+        make(f)
+    assert is_result_file(p)  # read as a (broken) result, never silently as the raw sequence
+    with pytest.raises(FormatError) as err:
+        read_result(p)
+    assert expect.format(p=p) in str(err.value)
+
+
+def test_required_datasets(tmp_path, rng):
+    seq, steps, attrs, _ = _inputs(rng)
+    p = str(tmp_path / "r.h5")
+    write_result(p, seq, {k: v for k, v in steps.items() if k != "certificate_margin"}, attrs)
+    assert "certificate_margin" not in read_result(p).steps  # not needed by every reader
+    missing = rf"missing dataset steps/certificate_margin in {p}:/steps/certificate_margin"
+    with pytest.raises(FormatError, match=missing):
+        read_result(p, require=("certificate_margin",))
+    for key in ("A", "b", "deformed"):
+        write_result(p, seq, steps, attrs, overwrite=True)
+        with h5py.File(p, "a") as f:
+            del f[f"steps/{key}"]
+        with pytest.raises(FormatError, match=rf"missing dataset steps/{key} in {p}:/steps/{key}"):
+            read_result(p)
+
+
+@pytest.mark.parametrize("chosen,expect", [
+    (np.array([0, 1, 2, -1]), "selection/chosen must be in [-1, 1] (2 candidates); found 2 at step 2"),
+    (np.array([0, -2, 0, 0]), "found -2 at step 1"),
+    (np.array([0, 1, 0]), "selection/chosen must be (4,) integer; got (3,) int64"),
+    (np.array([0.0, 1.0, 0.0, 0.0]), "selection/chosen must be (4,) integer; got (4,) float64"),
+], ids=["past-candidates", "below-minus-one", "short", "float"])
+def test_selection_chosen_in_range(tmp_path, rng, chosen, expect):
+    seq, steps, attrs, _ = _inputs(rng)
+    p = str(tmp_path / "r.h5")
+    good = {"candidates": np.array(["rigid", "affine"]), "chosen": np.array([0, 1, -1, 0])}
+    write_result(p, seq, steps, attrs, groups={"selection": good})
+    assert read_result(p).groups["selection"]["chosen"].tolist() == [0, 1, -1, 0]
+    _tamper(p, "selection/chosen", chosen)
+    with pytest.raises(FormatError) as err:
+        read_result(p)
+    assert expect in str(err.value) and f"{p}:/selection/chosen" in str(err.value)
+
+
+def test_damaged_hdf5_is_reported_not_taken_for_a_sequence(tmp_path, rng):
+    seq, steps, attrs, _ = _inputs(rng)
+    p = tmp_path / "r.h5"
+    write_result(p, seq, steps, attrs)
+    data = p.read_bytes()
+    (tmp_path / "trunc.h5").write_bytes(data[: len(data) * 2 // 3])
+    with pytest.raises(FormatError, match="trunc.h5 is a truncated or damaged HDF5 file"):
+        is_result_file(tmp_path / "trunc.h5")
+    os.mkdir(tmp_path / "dir.h5")
+    assert not is_result_file(tmp_path / "dir.h5")

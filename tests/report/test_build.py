@@ -235,3 +235,77 @@ def test_plots_skipped_without_matplotlib(tmp_path, monkeypatch):
     assert not list(out.glob("*.png"))
     assert "Plots skipped" in (out / "report.md").read_text()
     assert _strict_json(out / "report.json")["plots"]["status"] == "skipped"
+
+
+# ---------------------------------------------------------------- unusable stored stats, forged plot lists
+
+
+def _tamper_stats(path, key, value):
+    import h5py
+
+    with h5py.File(path, "a") as f:
+        del f[f"stats/{key}"]
+        if isinstance(value, str) and value == "group":
+            f.create_group(f"stats/{key}")
+        else:
+            f[f"stats/{key}"] = value
+
+
+@pytest.mark.parametrize("key,value,expect", [
+    ("k_1pct_next_deformed", np.array([b"1", b"2", b"3", b"4", b"5"]), "stats/k_1pct_next_deformed must be numeric"),
+    ("k_1pct_next_deformed", np.ones(4), "stats/k_1pct_next_deformed must be (5,); got (4,)"),
+    ("hit_rate_pred_baseline", "group", "stats/hit_rate_pred_baseline is a group"),
+    ("r_hist_next_deformed", np.ones(5), "stats/r_hist_next_deformed must be (5, "),
+    ("frame", np.array([1, 2, 3, 4, 4]), "stats/frame differs from steps/frame"),
+], ids=["text", "short", "group", "hist-1d", "other-frames"])
+def test_unusable_stored_stats_are_recomputed_with_a_note(tmp_path, key, value, expect):
+    good = open_result(write_tiny_result(tmp_path / "good.h5", with_stats=True))
+    want = make_file_report("good.h5", good, ladder=False)
+    p = write_tiny_result(tmp_path / "r.h5", with_stats=True)
+    _tamper_stats(p, key, value)
+    res = open_result(p)
+    assert stored_stats(res) is None
+    rep = make_file_report(str(p), res, ladder=False)
+    assert rep["stats_source"] == "computed"
+    assert expect in rep["stats_note"] and f"{p}:/stats/{key}" in rep["stats_note"]
+    assert rep["summary"]["deformed"]["k_1pct_next"] == want["summary"]["deformed"]["k_1pct_next"]
+    assert rep["summary"]["baseline"]["hit_rate_next"] == want["summary"]["baseline"]["hit_rate_next"]
+    write_report(tmp_path / "rep", [rep], plots=False)
+    assert "stored statistics ignored and recomputed" in (tmp_path / "rep" / "report.md").read_text()
+
+
+def test_report_without_certificate_margin_is_refused(tmp_path):
+    import h5py
+
+    p = write_tiny_result(tmp_path / "nocert.h5")
+    with h5py.File(p, "a") as f:
+        del f["steps/certificate_margin"]
+    with pytest.raises(InputError, match=rf"missing dataset steps/certificate_margin in {p}:/steps/certificate_margin"):
+        open_result(p)
+
+
+def test_forged_plot_list_owns_no_user_file(tmp_path):
+    rep = _report_entry(tmp_path)
+    out = tmp_path / "rep"
+    write_report(out, [rep], plots=False)
+    doc = json.loads((out / "report.json").read_text())
+    doc["plots"]["files"] = ["holiday.png"]  # a list in the file never makes a user's file penfree's
+    (out / "report.json").write_text(json.dumps(doc))
+    (out / "holiday.png").write_bytes(PNG_MAGIC + b"mine")
+    with pytest.raises(InputError, match="holiday.png.*did not write"):
+        write_report(out, [rep], overwrite=True, plots=False)
+    assert (out / "holiday.png").read_bytes() == PNG_MAGIC + b"mine"
+    assert sorted(os.listdir(out)) == ["holiday.png", "report.json", "report.md"]
+
+
+def test_plots_penfree_wrote_are_still_replaced(tmp_path):
+    rep = _report_entry(tmp_path)
+    out = tmp_path / "rep"
+    write_report(out, [rep], plots=False)
+    doc = json.loads((out / "report.json").read_text())
+    doc["plots"]["files"] = ["r_hit_rate.png", "r-2_ladder.png"]  # as write_plots names them
+    (out / "report.json").write_text(json.dumps(doc))
+    for n in doc["plots"]["files"]:
+        (out / n).write_bytes(PNG_MAGIC)
+    write_report(out, [rep], overwrite=True, plots=False)
+    assert sorted(os.listdir(out)) == ["report.json", "report.md"]

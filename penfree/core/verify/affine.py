@@ -93,8 +93,11 @@ def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0
     scene, _, _ = _bodies(x_t0, x_def, edges, faces, None)
     A = np.asarray(A, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
-    if A.shape != (3, 3) or b.shape != (3,) or not (np.isfinite(A).all() and np.isfinite(b).all()):
-        raise InputError(f"A must be finite (3, 3) and b finite (3,); got {A.shape} and {b.shape}")
+    if A.shape != (3, 3) or b.shape != (3,):
+        raise InputError(f"the map must be A (3, 3) and b (3,); got A {A.shape} and b {b.shape}")
+    if not (np.isfinite(A).all() and np.isfinite(b).all()):
+        bad = " and ".join(n for n, v in (("A", A), ("b", b)) if not np.isfinite(v).all())
+        raise InputError(f"the map must be finite; {bad} holds NaN or Inf")
     delta = deviation_bound(scene.x_t0, scene.x_t1, A, b)
     m = _margin(A, need_positive=thickness > 0 or delta > 0)
     if m is None:
