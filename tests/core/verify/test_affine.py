@@ -81,3 +81,17 @@ def test_affine_step_with_a_pair_inside_g_goes_to_the_ccd():
     V, F = two_sheets(n=4, gap=0.01)
     A = np.diag([1.01, 1.0, 1.0])
     assert verify_affine_step(V, _affine(V, A, np.zeros(3)), A, np.zeros(3), faces=F, thickness=0.02) is None
+
+
+@pytest.mark.parametrize("A, b, match", [
+    (np.eye(3), [0.0, np.nan, 0.0], "finite; b holds"),
+    (np.diag([1.0, np.inf, 1.0]), [0.0, 0.0, 0.0], "finite; A holds"),
+    (np.eye(2), [0.0, 0.0], r"A \(2, 2\)"),
+])
+def test_unusable_map_says_what_is_wrong(A, b, match):
+    """The message names the part of the map at fault (it printed the expected shapes)."""
+    from penfree.errors import InputError
+
+    V, F = two_sheets(n=3, gap=1.0)
+    with pytest.raises(InputError, match=match):
+        verify_affine_step(V, V, A, b, faces=F)
