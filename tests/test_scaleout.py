@@ -46,15 +46,6 @@ def assert_same_result(a, b):
     assert aa == ab
 
 
-@pytest.fixture(scope="module")
-def scheduler():
-    """One local cluster (2 processes) for the module, used through --scheduler."""
-    distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                  silence_logs=40) as cluster:
-        yield cluster.scheduler_address
-
-
 @pytest.fixture
 def inputs(tmp_path):
     d = tmp_path / "in"

@@ -17,15 +17,6 @@ from _scenes import grid_faces, sheet
 from penfree.scaleout import plan
 
 
-@pytest.fixture(scope="module")
-def scheduler():
-    """One local cluster (2 processes) for the module, used through --scheduler."""
-    distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                  silence_logs=50) as cluster:
-        yield cluster.scheduler_address
-
-
 def cloth(path, T=6, nan_frame=None):
     """A 4 x 4 cloth drifting up and bending: (T, 16, 3) positions and its faces."""
     u, v = sheet(4)

@@ -98,6 +98,11 @@ def _tamper(path, name, value):
     ("steps/rank", np.zeros(7), "steps/rank must have one row per step (4)"),
 ], ids=["frame-too-big", "frame-zero", "A-shape", "b-rows", "deformed-vertices", "deformed-nan", "short-column"])
 def test_read_validates(tmp_path, rng, name, value, expect):
+    _assert_read_fails(tmp_path, rng, name, value, expect)
+
+
+def _assert_read_fails(tmp_path, rng, name, value, expect):
+    """A written result with dataset `name` replaced by `value` reads as the error `expect`."""
     seq, steps, attrs, _ = _inputs(rng)
     p = str(tmp_path / "r.h5")
     write_result(p, seq, steps, attrs)
@@ -161,13 +166,7 @@ def _nan_at(shape, index):
 ], ids=["frame-unsorted", "frame-repeated", "b-nan", "A-partly-nan", "A-inf", "model-not-text", "margin-bytes",
         "residual-text", "scalar-column"])
 def test_read_validates_more(tmp_path, rng, name, value, expect):
-    seq, steps, attrs, _ = _inputs(rng)
-    p = str(tmp_path / "r.h5")
-    write_result(p, seq, steps, attrs)
-    _tamper(p, name, value)
-    with pytest.raises(FormatError) as err:
-        read_result(p)
-    assert expect.format(p=p) in str(err.value)
+    _assert_read_fails(tmp_path, rng, name, value, expect)
 
 
 def test_per_component_steps_may_be_all_nan(tmp_path, rng):
