@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...constants import DEFAULT_MAX_PAIRS, UNIT_ROUNDOFF, VERIFY_MARGIN_LADDER
+from ...constants import DEFAULT_MAX_PAIRS, UNIT_ROUNDOFF
 from ...errors import InputError
 from ..contact.broad_phase import start_pass
-from ..fit.certificate import certify, fast_margin_bound
-from .gate import deviation_bound
+from ..fit.certificate import certify
+from .gate import deviation_bound, positive_margin
 from .reuse import apart_sq, listed_start_pass
 from .path import _bodies, _Collector, _inflation, _pairs_self, check_thickness, edge_face_exact
 from .result import VerifyResult
@@ -23,12 +23,7 @@ def _margin(A, need_positive):
     """A margin m with certify(A, m) True (exact), or None."""
     if not need_positive:
         return 0.0 if certify(A, 0.0) else None
-    fb = fast_margin_bound(A)  # fb > m implies certify(A, m); the exact test still decides
-    tries = [min(fb * (1 - 1e-6), 1 - 1e-9)] if fb > 0.01 else list(VERIFY_MARGIN_LADDER)
-    for m in tries:
-        if certify(A, m):
-            return m
-    return None
+    return positive_margin(A)
 
 
 def _start_pass(col, scene, g):

@@ -4,9 +4,12 @@ Every map `deform` writes passes `StepGate.passes` (SPEC section 5, "Real start
 states" and "Obstacles"):
 
 - the exact certificate `certificate.certify_map(A, margin_rule(thickness))` of every
-  applied map. With thickness 0 the margin is 0: a nonsingular path maps every
-  primitive by one bijection, so no disjoint pair ever meets, whatever the start
-  state holds;
+  applied map. With thickness 0 the margin is 0: a nonsingular path of the exact map
+  ``A x + b`` maps every primitive by one bijection, so no disjoint pair ever meets,
+  whatever the start state holds. The stored x_def is that map rounded (delta, below);
+  a pair starting within ``2 delta / m_c`` (``m_c > 0`` a certified margin of the map)
+  could cross by the rounding alone, so those pairs go through the exact CCD as below
+  (a vertex 1e-17 above a face crossed it under a certified rotation);
 - with thickness h > 0 the margin is ``m = 1 / MARGIN_GAP_RADIUS_FACTOR``. A map whose
   path keeps ``sigma_min >= m_c`` (``m_c >= m``: its rigorous fast bound, else m)
   keeps every pair that starts more than ``(h + 2 delta) / m_c`` apart at least h
@@ -29,14 +32,26 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ...constants import MARGIN_GAP_RADIUS_FACTOR, NEAR_FIRST_FACTOR, NEAR_SLACK_REL, UNIT_ROUNDOFF
-from ..fit.certificate import certify_map, fast_margin_bound
-
+from ...constants import (
+    MARGIN_GAP_RADIUS_FACTOR, NEAR_FIRST_FACTOR, NEAR_SLACK_REL, UNIT_ROUNDOFF, VERIFY_MARGIN_LADDER,
+)
+from ..fit.certificate import certify, certify_map, fast_margin_bound
 
 
 def margin_rule(thickness) -> float:
     """The certificate margin every path uses: 0 for thickness 0, else ``1 / MARGIN_GAP_RADIUS_FACTOR``."""
     return 0.0 if float(thickness) <= 0.0 else 1.0 / MARGIN_GAP_RADIUS_FACTOR
+
+
+def positive_margin(A):
+    """A margin ``m > 0`` with ``certify(A, m)`` True (the exact test), or None: the
+    fast bound when it is clear of 0, else the first of `VERIFY_MARGIN_LADDER` that
+    certifies."""
+    fb = fast_margin_bound(A)  # fb > m implies certify(A, m); the exact test still decides
+    for m in [min(fb * (1 - 1e-6), 1 - 1e-9)] if fb > 0.01 else list(VERIFY_MARGIN_LADDER):
+        if certify(A, m):
+            return m
+    return None
 
 
 def deviation_bound(x, x_def, A, b) -> float:
@@ -146,14 +161,15 @@ class StepGate:
             return True  # doing nothing
         if not all(np.isfinite(A).all() and certify_map(A, self.margin) for A, _, _ in maps):
             return False
-        if self.thickness > 0.0 and self.has_topology and not self._near_ok(x_def64, maps):
+        if self.has_topology and not self._near_ok(x_def64, maps):
             return False
         return self._obstacles_ok(x_def64)
 
     def _near_ok(self, x_def64, maps) -> bool:
         from .pairs import check_pairs
 
-        limit = 0.5 * NEAR_SLACK_REL * self.thickness
+        # thickness 0: any rounding, the pairs it could make cross are checked instead
+        limit = 0.5 * NEAR_SLACK_REL * self.thickness if self.thickness > 0.0 else np.inf
         reach = 0.0  # pairs starting closer than this are not covered by the certificates
         for A, b, rows in maps:
             sl = slice(None) if rows is None else rows
@@ -161,8 +177,18 @@ class StepGate:
             delta = deviation_bound(self.x[sl], x_def64[sl], A, np.asarray(b, np.float64))
             if not delta <= limit:
                 return False
+            if self.thickness == 0.0 and delta == 0.0:
+                continue  # x_def is the exact map: its certificate covers every pair
             m_c = max(self.margin, fast_margin_bound(A))  # certify_map(A, margin) passed
+            if not m_c > 0.0:
+                m_c = positive_margin(A)
+                if m_c is None:
+                    return False
             reach = max(reach, (self.thickness + 2.0 * delta) / m_c)
+        if not np.isfinite(reach):
+            return False
+        if reach == 0.0:
+            return True
         # distances are rounded: a relative and an absolute allowance, well above it
         reach = reach * (1.0 + 1e-6) + 1e-12 * (float(np.abs(self.x).max()) if len(self.x) else 0.0)
         close = [(kind, ij[d0 < reach], idx[d0 < reach]) for kind, ij, idx, d0 in self.near(reach)]

@@ -2,6 +2,7 @@
 that knows the start separations against the full query."""
 
 from fractions import Fraction
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -111,3 +112,91 @@ def test_near_pairs_ignore_separations_with_a_free_vertex(rng):
     want = _close(near_pairs(V, None, F, R), V, R)
     assert want and all(k == "vf" and i == len(V) - 1 for k, i, _ in want)
     assert _close(near_pairs(V, None, F, R, keep=d < R), V, R) == want
+
+
+def _vf_crosses(x0, x1, v, f):
+    """Exact: does vertex `v` pass through triangle `f` on the straight path x0 -> x1?
+    (A sign change of the orientation, bisected to 2^-200, inside the triangle there.)"""
+    P = [[[Fraction(float(c)) for c in X[i]] for X in (x0, x1)] for i in (v, *f)]
+
+    def at(t):
+        return [[a + t * (b - a) for a, b in zip(*P[k])] for k in range(4)]
+
+    def sub(a, b):
+        return [p - q for p, q in zip(a, b)]
+
+    def cross(a, b):
+        return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+    def dot(a, b):
+        return sum(p * q for p, q in zip(a, b))
+
+    def orient(t):
+        p, a, b, c = at(t)
+        return dot(cross(sub(b, a), sub(c, a)), sub(p, a))
+
+    def inside(t):
+        p, a, b, c = at(t)
+        n = cross(sub(b, a), sub(c, a))
+        w0 = dot(cross(sub(b, p), sub(c, p)), n)
+        w1 = dot(cross(sub(c, p), sub(a, p)), n)
+        return min(w0, w1, dot(n, n) - w0 - w1) >= 0
+
+    lo, hi = Fraction(0), Fraction(1)
+    if orient(lo) * orient(hi) > 0:
+        return False
+    if orient(hi) == 0:
+        return inside(hi)
+    for _ in range(200):
+        mid = (lo + hi) / 2
+        if (orient(mid) > 0) == (orient(lo) > 0):
+            lo = mid
+        else:
+            hi = mid
+    return inside(lo) or inside(hi)
+
+
+@pytest.mark.parametrize("dtype, gap", [(np.float64, 1e-17), (np.float32, 1e-8)])
+@pytest.mark.parametrize("model", ["affine", "rigid", "auto"])
+def test_rounding_of_x_def_never_crosses_at_thickness_0(dtype, gap, model):
+    """A vertex `gap` above a face (below the rounding of x_def) under a certified
+    rotation: the exact map keeps them apart, its rounded x_def crossed (the gate only
+    certified the map at thickness 0). Every written step must keep the vertex above."""
+    from penfree.core.pipeline.deform import deform_sequence
+    from penfree.core.verify.path import verify_step
+    from penfree.core.pipeline.predeform import predeform
+    from penfree.sequence import Sequence
+
+    F = np.array([[0, 1, 2]])
+    x = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.25, 0.25, gap]]) + [0.395, -0.372, 0.0]
+    th = 0.2
+    R = np.array([[np.cos(th), 0, np.sin(th)], [0, 1, 0], [-np.sin(th), 0, np.cos(th)]])
+    x = x.astype(dtype)
+    x_prev = (2 * x.astype(np.float64) - x.astype(np.float64) @ R.T).astype(dtype)
+    assert verify_step(x, x, faces=F).ok
+    seq = Sequence(positions=np.stack([x_prev, x]), faces=F).validate()
+    x_def = deform_sequence(seq, model=model).steps["deformed"][0]
+    assert not _vf_crosses(x, x_def, 3, (0, 1, 2))
+    assert verify_step(x, x_def, faces=F).ok
+    if model == "affine":
+        r = predeform(x_prev, x, faces=F, contact_radius=0.01)
+        assert not _vf_crosses(x, r.x_def, 3, (0, 1, 2))
+
+
+def test_rounding_of_a_float32_x_def_never_crosses_at_thickness_0():
+    """A random float32 scene (found by an adversarial search; tests/data) where auto's
+    map, certified, was written rounded to float32 through a face 1.5e-8 away."""
+    from penfree.core.pipeline.deform import deform_sequence
+    from penfree.core.verify.path import verify_step
+    from penfree.sequence import Sequence
+
+    d = np.load(Path(__file__).parents[2] / "data" / "gate_rounding_f32.npz")
+    x, F = d["x"], d["F"]
+    seq = Sequence(positions=np.stack([d["x_prev"], x]), faces=F).validate()
+    x_def = deform_sequence(seq, model="auto").steps["deformed"][0]
+    assert x_def.dtype == np.float32
+    for v in range(len(x)):
+        for f in F:
+            if v not in f:
+                assert not _vf_crosses(x, x_def, v, tuple(f)), (v, f)
+    assert verify_step(x, x_def, faces=F).ok
