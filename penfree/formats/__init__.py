@@ -154,7 +154,7 @@ def check_outputs(outputs, inputs, overwrite: bool = False) -> None:
     ------
     InputError, OutputExistsError
     """
-    from .atomic import check_output
+    from .atomic import check_output, inside
 
     inputs = [os.fspath(i) for i in inputs if i is not None]
     dirs = [d for d in inputs if os.path.isdir(d)]
@@ -163,7 +163,7 @@ def check_outputs(outputs, inputs, overwrite: bool = False) -> None:
         check_output(p, True, inputs=files)  # "is also an input" first: the most specific refusal
         _check_pattern_names_no_input(os.fspath(p), files)
         for d in dirs:
-            if _inside(os.fspath(p), d):
+            if inside(os.fspath(p), d):
                 raise InputError(f"output {p} is inside the input directory {d}; choose an output outside it "
                                  f"(inputs are never modified)")
         check_output(p, overwrite)
@@ -184,9 +184,3 @@ def _check_pattern_names_no_input(pattern: str, files: list) -> None:
         if fnmatchcase(os.path.basename(f), names) and os.path.realpath(os.path.dirname(f) or ".") == where:
             raise InputError(f"output {pattern} is also an input (its frames include {f}); choose another output "
                              f"name (inputs are never modified)")
-
-
-def _inside(child: str, parent: str) -> bool:
-    """`child` is `parent` or lies below it (links resolved; `child` need not exist)."""
-    child, parent = os.path.realpath(child), os.path.realpath(parent)
-    return child == parent or child.startswith(parent.rstrip(os.sep) + os.sep)

@@ -404,7 +404,8 @@ def _swap_dir(tmp: str, path: str, parent: str) -> None:
                          f"({errors[0]}); remove it by hand")
 
 
-def _inside(child: str, parent: str) -> bool:
+def inside(child: str, parent: str) -> bool:
+    """`child` is `parent` or lies below it (links resolved; `child` need not exist)."""
     child, parent = os.path.realpath(child), os.path.realpath(parent)
     return child == parent or child.startswith(parent.rstrip(os.sep) + os.sep)
 
@@ -430,10 +431,10 @@ def check_output_dir(path, overwrite: bool = False, inputs=(), owned=None) -> No
     """
     path = _strip_sep(os.fspath(path))
     for inp in inputs:
-        if inp is not None and _inside(os.fspath(inp), path):
+        if inp is not None and inside(os.fspath(inp), path):
             raise InputError(f"output directory {path} contains the input {inp}; choose another output directory "
                              f"(inputs are never modified)")
-    if _inside(os.getcwd(), path):
+    if inside(os.getcwd(), path):
         raise InputError(f"output directory {path} is the current directory or holds it; choose a new directory")
     if not os.path.lexists(path):
         return
