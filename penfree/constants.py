@@ -118,6 +118,16 @@ DEFAULT_RADIUS_FRACTION = 0.1
 # --- floating point -----------------------------------------------------------
 #: Unit roundoff of float64 (round to nearest), the u of every rounding-error bound.
 UNIT_ROUNDOFF = 2.0**-53
+#: How far above a pair's true distance its computed one (`contact.distance`) may lie,
+#: relative to the coordinates' magnitude. The kernels return the distance of two
+#: computed points on the primitives, so it is never much too small, but an
+#: ill-conditioned pair (nearly parallel crossing segments, a vertex over a sliver
+#: triangle) gets points off the optimum: by about min(L sin a, u L / sin a) <= sqrt(u) L
+#: for an angle a (the endpoint and edge candidates hold the first, the solve the
+#: second). A computed distance proves a pair apart only above the radius plus this
+#: much; 16 sqrt(u) leaves room (an audit found 5e-11 computed for a true 2e-19 between
+#: rods of unit scale, and 1.1e-12 for 1.2e-18 over a 1e-6 wide triangle).
+DISTANCE_ROUNDING_REL = 16.0 * UNIT_ROUNDOFF ** 0.5
 
 # --- CCD (SPEC sections 6 and 10; penfree/core/contact/ccd.py) ---------------
 #: Proven bound of the floating-point error of one corner value of the contact

@@ -33,7 +33,8 @@ import numpy as np
 from numba import njit
 
 from ...constants import (
-    MARGIN_GAP_RADIUS_FACTOR, NEAR_FIRST_FACTOR, NEAR_SLACK_REL, UNIT_ROUNDOFF, VERIFY_MARGIN_LADDER,
+    DISTANCE_ROUNDING_REL, MARGIN_GAP_RADIUS_FACTOR, NEAR_FIRST_FACTOR, NEAR_SLACK_REL, UNIT_ROUNDOFF,
+    VERIFY_MARGIN_LADDER,
 )
 from ..fit.certificate import certify, certify_map, fast_margin_bound
 
@@ -189,8 +190,8 @@ class StepGate:
             return False
         if reach == 0.0:
             return True
-        # distances are rounded: a relative and an absolute allowance, well above it
-        reach = reach * (1.0 + 1e-6) + 1e-12 * (float(np.abs(self.x).max()) if len(self.x) else 0.0)
+        # computed distances can lie above the true ones (`DISTANCE_ROUNDING_REL`)
+        reach = reach * (1.0 + 1e-6) + DISTANCE_ROUNDING_REL * (float(np.abs(self.x).max()) if len(self.x) else 0.0)
         close = [(kind, ij[d0 < reach], idx[d0 < reach]) for kind, ij, idx, d0 in self.near(reach)]
         return check_pairs(close, self.x, x_def64, self.thickness)
 

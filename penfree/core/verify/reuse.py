@@ -14,15 +14,16 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ...constants import DISTANCE_ROUNDING_REL
 from ..contact.neighbours import NeighbourList
 from ..contact.orient import segment_may_meet_triangle_at
 from .path import _narrow, _share_no_vertex, edge_face_exact
 
 #: A listed pair is dropped before the CCD only when its computed distance exceeds
-#: g (1 + _KEEP_REL) + _PAD_REL * |x|max: far beyond the rounding of the distance
-#: kernels (a few ulps of the squared coordinates), so a dropped pair is truly > g.
+#: g (1 + _KEEP_REL) + _PAD_REL * |x|max: beyond how far a computed distance can lie
+#: above the true one (`DISTANCE_ROUNDING_REL`), so a dropped pair is truly > g.
 _KEEP_REL = 1e-9
-_PAD_REL = 1e-12
+_PAD_REL = DISTANCE_ROUNDING_REL
 
 
 def apart_sq(g, x) -> float:

@@ -200,3 +200,30 @@ def test_rounding_of_a_float32_x_def_never_crosses_at_thickness_0():
             if v not in f:
                 assert not _vf_crosses(x, x_def, v, tuple(f)), (v, f)
     assert verify_step(x, x_def, faces=F).ok
+
+
+@pytest.mark.parametrize("case", ["ee", "vf"])
+def test_ill_conditioned_pairs_are_not_taken_apart_by_their_computed_distance(case):
+    """Nearly parallel rod segments 2e-19 apart (computed: 5e-11) and a vertex 1.2e-18
+    over a 1e-6 wide triangle (computed: 1.1e-12), found by an adversarial search
+    (tests/data). A computed distance lies above the true one by up to ~sqrt(u) of the
+    scale, so neither may prove such a pair apart: deform wrote crossing steps at
+    thickness 0, and verify's certificate path passed them."""
+    from penfree.core.pipeline.deform import deform_sequence
+    from penfree.core.verify.affine import verify_affine_step
+    from penfree.core.verify.path import verify_step
+    from penfree.sequence import Sequence
+
+    d = np.load(Path(__file__).parents[2] / "data" / f"gate_rounding_{case}.npz")
+    topo = {"faces": d["faces"]} if "faces" in d.files else {"edges": d["edges"]}
+    x = d["pos"][1]
+    bad = verify_step(x, d["x_def"], **topo, pre_existing=True)
+    assert not bad.ok  # the step an earlier version wrote crosses (the exact CCD at thickness 0)
+    r = verify_affine_step(x, d["x_def"], d["A"], d["b"], **topo)
+    assert r is None or not r.ok
+    seq = Sequence(positions=d["pos"], **topo).validate()
+    for model in ("auto", "translation", "rigid", "affine"):
+        x_def = deform_sequence(seq, model=model).steps["deformed"][0]
+        assert verify_step(x, x_def, **topo, pre_existing=True).ok, model
+        if case == "vf":
+            assert not _vf_crosses(x, x_def, 3, (0, 1, 2)), model
