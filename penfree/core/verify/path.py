@@ -100,7 +100,7 @@ class _Collector:
         return [(str(kinds[k]), int(ij[k, 0]), int(ij[k, 1]), float(toi[k])) for k in order], len(toi)
 
 
-def _narrow(col, kind, ij, idx, X0, X1, ccd_kind, thickness, start=None, pre=None):
+def _narrow(col, kind, ij, idx, X0, X1, ccd_kind, thickness, start=None, pre=None, one_map=True):
     """CCD of pairs ij whose 4 vertex rows (into X0/X1) are idx (K, 4), in blocks.
 
     With `start`, the path hits are checked again at t = 0 (static): every pair
@@ -110,13 +110,16 @@ def _narrow(col, kind, ij, idx, X0, X1, ccd_kind, thickness, start=None, pre=Non
     With `pre` (a collector; the deform-result reading of SPEC section 6), a hit
     whose pair starts within `thickness` only has to stay disjoint (re-checked with
     thickness 0), and a pair that already touches or intersects at the start is
-    pre-existing: it goes to `pre` instead of `col`.
+    pre-existing: it goes to `pre` instead of `col`. Only where its two sides move by
+    one map (`one_map`, the scene's own pairs): a nonsingular path keeps such a pair as
+    it was. A scene primitive touching an obstacle may be pushed through it, so such a
+    pair is excused only when none of its vertices moves.
     """
     for s in range(0, len(ij), _BLOCK):
         sl = slice(s, s + _BLOCK)
         status, toi, sep, _ = ccd_indexed(X0, X1, idx[sl], ccd_kind, thickness)
         if pre is not None:
-            _excuse(pre, kind, ij[sl], idx[sl], X0, X1, ccd_kind, thickness, status, sep)
+            _excuse(pre, kind, ij[sl], idx[sl], X0, X1, ccd_kind, thickness, status, sep, one_map)
         col.add(kind, ij[sl], status, toi, sep)
         hit = np.flatnonzero(status != SEPARATED)
         if start is not None and len(hit):
@@ -124,7 +127,7 @@ def _narrow(col, kind, ij, idx, X0, X1, ccd_kind, thickness, start=None, pre=Non
             start.add(kind, ij[sl][hit], s0, t0, g0)
 
 
-def _excuse(pre, kind, ij, idx, X0, X1, ccd_kind, thickness, status, sep):
+def _excuse(pre, kind, ij, idx, X0, X1, ccd_kind, thickness, status, sep, one_map=True):
     """Clear (in place) the hits of `status` that the start state explains.
 
     A pair within `thickness` at t = 0 (resting contact) passes when its path keeps
@@ -151,6 +154,8 @@ def _excuse(pre, kind, ij, idx, X0, X1, ccd_kind, thickness, status, sep):
         touch = np.concatenate([ccd_indexed(X0, X0, idx[hit[c:c + CCD_MAX_EXACT]], ccd_kind, 0.0)[0] != SEPARATED
                                 for c in range(0, len(hit), CCD_MAX_EXACT)])
         old = hit[touch]
+        if not one_map:  # only a pair that does not move at all stays as it was
+            old = old[(X0[idx[old]] == X1[idx[old]]).all(axis=(1, 2))]
         pre.add(kind, ij[old], status[old], np.zeros(len(old)), np.zeros(len(old)))
         status[old], sep[old] = SEPARATED, 0.0
 
@@ -204,15 +209,15 @@ def _pairs_between(col, body, ob, name, thickness, start=None, pre=None):
     if len(body.E) and len(ob.E):
         ee = edge_edge_candidates_between(X0, X1, body.E, ob.E + n, infl)
         idx = np.concatenate([body.E[ee[:, 0]], ob.E[ee[:, 1]] + n], axis=1)
-        _narrow(col, f"ee:{name}", ee, idx, X0, X1, "ee", thickness, start, pre)
+        _narrow(col, f"ee:{name}", ee, idx, X0, X1, "ee", thickness, start, pre, one_map=False)
     if len(body.V) and len(ob.F):
         vf = vertex_face_candidates_between(X0, X1, body.V, ob.F + n, infl)
         idx = np.concatenate([vf[:, :1], ob.F[vf[:, 1]] + n], axis=1)
-        _narrow(col, f"vf:{name}", vf, idx, X0, X1, "vf", thickness, start, pre)
+        _narrow(col, f"vf:{name}", vf, idx, X0, X1, "vf", thickness, start, pre, one_map=False)
     if len(ob.V) and len(body.F):
         fv = vertex_face_candidates_between(X0, X1, ob.V + n, body.F, infl)
         idx = np.concatenate([fv[:, :1], body.F[fv[:, 1]]], axis=1)
-        _narrow(col, f"fv:{name}", fv[:, ::-1] - np.array([0, n]), idx, X0, X1, "vf", thickness, start, pre)
+        _narrow(col, f"fv:{name}", fv[:, ::-1] - np.array([0, n]), idx, X0, X1, "vf", thickness, start, pre, one_map=False)
 
 
 @njit(cache=True)

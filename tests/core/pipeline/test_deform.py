@@ -69,6 +69,29 @@ def test_distances_outside_the_supported_range_are_refused(name, value):
             verify_step(seq.positions[0], seq.positions[1], faces=seq.faces, thickness=value)
 
 
+@pytest.mark.parametrize("thickness", [0.0, 0.01])
+@pytest.mark.parametrize("model", ["affine", "translation", "per-component", "auto"])
+def test_a_sheet_touching_an_obstacle_is_not_pushed_through_it(model, thickness):
+    """A sheet lying exactly on the top face of a closed box obstacle, falling: its
+    pairs with the box touch at the start. Such a pair was excused as pre-existing,
+    as a scene pair under one nonsingular map is, and the sheet was written inside the
+    box (audit). An obstacle does not move with the map: the step must not go down."""
+    from penfree.sequence import Obstacle
+
+    B = np.array([[x, y, z] for z in (-1.0, 0.0) for y in (0.0, 1.0) for x in (0.0, 1.0)])
+    BF = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4], [2, 6, 3], [3, 6, 7],
+                   [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])
+    x = np.array([[0.3, 0.3, 0], [0.7, 0.3, 0], [0.7, 0.7, 0], [0.3, 0.7, 0.0]])
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    seq = Sequence(positions=np.stack([x + [0, 0, 0.2], x]), faces=F, thickness=thickness,
+                   obstacles=[Obstacle(name="box", positions=B, faces=BF)]).validate()
+    x_def = deform_sequence(seq, model=model).steps["deformed"][0]
+    assert (x_def[:, 2] >= 0.0).all()  # never into the box (the sheet lies inside its xy range)
+    pushed = x - [0, 0, 0.2]  # what was written before
+    r = verify_step(x, pushed, faces=F, thickness=thickness, obstacles=[(B, B, BF, None)], pre_existing=True)
+    assert not r.ok
+
+
 def test_deform_stats_defaults_to_the_sequence_values():
     seq = _moving_sheets(gap=1.0, thickness=0.05)
     steps = deform_sequence(seq, model="affine").steps
