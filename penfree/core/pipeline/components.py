@@ -135,8 +135,8 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
     -----
     Within a group the exact certificate of its map makes every path safe (SPEC
     section 5); between groups the conservative CCD does, in the deform-result reading
-    (pairs resting inside the thickness must stay disjoint, pairs touching at the start
-    are left as they were). A violation the CCD cannot attribute to two different
+    (pairs resting inside the thickness must stay disjoint); two groups with a pair
+    touching at the start share a map, under which it stays as it was. A violation the CCD cannot attribute to two different
     groups (a near-miss flagged inside one certified group) merges everything into one
     global map, which is certified.
     """
@@ -177,11 +177,15 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
             break
         res = verify_step(x, x_def, edges=edges, faces=faces, thickness=thickness, max_pairs=_ALL_PAIRS,
                           start_intersections=False, pre_existing=True)
-        if res.ok:
+        # A pair touching at the start is left as it was only under one nonsingular map:
+        # across two groups' maps one primitive may be pushed through the other.
+        across = [(kind, i, j) for kind, i, j in res.pre_existing
+                  if len(np.unique(group[labels[np.concatenate(_primitive_vertices(kind, i, j, res, faces_arr))]])) > 1]
+        if res.ok and not across:
             break
         before = group.copy()
         if res.start_ok:
-            for kind, i, j, _ in res.pairs:
+            for kind, i, j in [p[:3] for p in res.pairs] + across:
                 va, vb = _primitive_vertices(kind, i, j, res, faces_arr)
                 touched = np.unique(group[labels[np.concatenate([va, vb])]])
                 group[np.isin(group, touched)] = touched[0]

@@ -88,3 +88,25 @@ def test_near_pass_respects_thickness(thickness):
     if thickness <= 0.03:
         assert ok and gate.passes(cs.x_def, maps)
     assert not gate.passes(cs.x_def, maps) or ok
+
+
+@pytest.mark.parametrize("thickness", [0.0, 0.01])
+def test_components_touching_at_the_start_share_a_map(thickness):
+    """The apex of a hanging triangle rests exactly on another object's face and rises:
+    a pair touching at the start was excused as pre-existing between two groups' maps,
+    and the apex was pushed through the face (audit). Two groups with a touching pair
+    share one map, under which the contact stays as it was."""
+    from penfree.core.pipeline.deform import deform_sequence
+    from penfree.core.verify.pairs import start_intersections
+    from penfree.sequence import Sequence
+
+    x = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.25, 0.25, 0], [0.5, 0.1, -1], [0.1, 0.5, -1.0]])
+    F = np.array([[0, 1, 2], [3, 4, 5]])
+    x_prev = x.copy()
+    x_prev[3:, 2] -= 0.3
+    seq = Sequence(positions=np.stack([x_prev, x]), faces=F, thickness=thickness).validate()
+    x_def = deform_sequence(seq, model="per-component").steps["deformed"][0]
+    # edges 3-4 and 3-5 through face 0's interior: the count grew when the apex was pushed up
+    assert start_intersections(x_def, None, F) <= start_intersections(x, None, F)
+    n = np.cross(x_def[1] - x_def[0], x_def[2] - x_def[0])
+    assert np.dot(n, x_def[3] - x_def[0]) <= 1e-12  # the apex never above the face
