@@ -55,8 +55,28 @@ def _compare(x, normal, offset, level, strict):
 
 
 def _clear(x, normal, offset, thickness):
-    """Exact: every row at least `thickness` on the free side (strictly on it when 0)."""
-    return _compare(x, normal, offset, thickness, strict=thickness == 0.0)
+    """Exact: each row at least `thickness` (Euclidean) on the free side, i.e.
+    ``n . x - offset >= thickness |n|``; strictly on it when `thickness` is 0.
+
+    ``thickness |n|`` is irrational in general: rounded, a vertex exactly h away
+    could be classified as resting inside h, and then kept only on the free side
+    (an audit found ends at 0.43 h). Rows near it are decided on the squares:
+    ``s >= 0`` and ``s^2 >= thickness^2 (n . n)``, in rationals.
+    """
+    if thickness == 0.0:
+        return _compare(x, normal, offset, 0.0, strict=True)
+    n = np.asarray(normal, dtype=np.float64)
+    h = thickness * float(np.sqrt(n @ n))
+    s, err = _signed(x, n, offset)
+    tol = err + 8.0 * _U * (np.abs(s) + h)  # the rounding of s and of h, with room
+    out = s - h > tol
+    unsure = np.flatnonzero(np.abs(s - h) <= tol)
+    if len(unsure):
+        t2 = Fraction(float(thickness)) ** 2 * sum(Fraction(float(c)) ** 2 for c in n)
+        for i in unsure:
+            v = _exact_signed(x[i], n, offset)
+            out[i] = v >= 0 and v * v >= t2
+    return out
 
 
 def half_space_verdict(x_t0, x_t1, normal, offset, thickness, pre_existing=False):
@@ -92,9 +112,8 @@ def half_space_verdict(x_t0, x_t1, normal, offset, thickness, pre_existing=False
     """
     n = np.asarray(normal, dtype=np.float64)
     scale = float(np.linalg.norm(n))
-    h = thickness * scale  # n . x - offset >= h |n| is the Euclidean condition
-    ok0 = _clear(x_t0, n, offset, h)
-    ok1 = _clear(x_t1, n, offset, h)
+    ok0 = _clear(x_t0, n, offset, thickness)  # n . x - offset >= thickness |n|, exactly
+    ok1 = _clear(x_t1, n, offset, thickness)
     none = np.zeros(0, np.int64)
     if not pre_existing:
         start, path, pre = np.flatnonzero(~ok0), np.flatnonzero(~ok1), none

@@ -80,3 +80,29 @@ def test_gate_passes_small_maps_above_a_plane():
     A = np.eye(3) + 0.01 * rng.normal(size=(3, 3))
     assert gate.passes(x @ A.T, [(A, np.zeros(3), None)])
     assert not gate.passes(x - [0, 0, 1.0], [(np.eye(3), np.array([0, 0, -1.0]), None)])
+
+
+def test_half_space_thickness_is_decided_on_the_exact_norm():
+    """A vertex exactly more than h from a plane whose rounded h |n| lies above the
+    exact one: it was classified as resting inside h, so a path to 0.5 h passed (audit).
+    The level thickness |n| is irrational; it is now decided on the squares."""
+    from decimal import Decimal, getcontext
+
+    from penfree.core.contact.obstacles import half_space_verdict
+
+    getcontext().prec = 60
+    th = 0.01
+    rng = np.random.default_rng(3)
+    while True:  # a normal and a float c with th |n| <= c < fl(th fl(|n|))
+        n = np.array([rng.uniform(0.2, 1), rng.uniform(0.2, 1), 0.0])
+        c = np.nextafter(th * float(np.linalg.norm(n)), 0)
+        if Decimal(c) >= Decimal(th) * sum(Decimal(float(a)) ** 2 for a in n).sqrt():
+            break
+    x0 = np.array([c * n / np.dot(n, n)])
+    x1 = x0 - 0.5 * th * n / np.linalg.norm(n)  # to half the thickness
+    start, path, pre, _ = half_space_verdict(x0, x1, n, 0.0, th, pre_existing=True)
+    assert path.tolist() == [0] and pre.tolist() == []
+    start, _, _, _ = half_space_verdict(x0, x0, n, 0.0, th)
+    exact = sum(Fraction(float(a)) * Fraction(float(b)) for a, b in zip(n, x0[0]))
+    at_least_h = exact >= 0 and exact ** 2 >= Fraction(th) ** 2 * sum(Fraction(float(a)) ** 2 for a in n)
+    assert (start.tolist() == []) == at_least_h
