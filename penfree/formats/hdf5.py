@@ -277,7 +277,7 @@ def _read_obstacle(g, path, name, where, window=None, T=None) -> Obstacle:
         if pos.shape[-1] != 3 or pos.dtype.kind not in "fiu":
             raise FormatError(f"{ds_name} must be (T, M, 3) or (M, 3) float; got {pos.shape} {pos.dtype} in {where}:/{ds_name}")
     else:  # per frame: the sequence's window, when it has the sequence's T frames (else validation says so)
-        pos = read_positions(ds, where, ds_name, window if ds.shape[0] == T else None)
+        pos = read_positions(ds, where, ds_name, window if ds.ndim and ds.shape[0] == T else None)
     return Obstacle(
         name=name,
         positions=pos,

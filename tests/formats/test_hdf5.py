@@ -278,3 +278,18 @@ def test_deform_result_copies_the_input_chunks(tmp_path, rng, monkeypatch):
     assert len(compressed) == T - 2  # the deformed frames, not the positions
     assert _chunks(tmp_path / "out.h5")[0] == _chunks(src)[0]
     np.testing.assert_array_equal(read_result(tmp_path / "out.h5").sequence.positions, seq.positions)
+
+
+def test_scalar_obstacle_positions_are_named(tmp_path):
+    """A scalar `obstacles/<name>/positions` (found by the HDF5 fuzz test) raised an
+    IndexError; it is a FormatError naming the dataset and the expected shape."""
+    import h5py
+
+    p = str(tmp_path / "bad.h5")
+    with h5py.File(p, "w") as f:
+        f["positions"] = GOOD
+        g = f.create_group("obstacles/wall")
+        g["positions"] = 1.0
+        g["faces"] = np.array([[0, 1, 2]])
+    with pytest.raises(FormatError, match=r"obstacles/wall/positions must be \(T, N, 3\); got \(\)"):
+        read_sequence(p)
