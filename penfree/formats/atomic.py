@@ -262,10 +262,10 @@ def atomic_file(path, overwrite: bool = False):
     with write_phase():
         created = []
         try:
-            created = _make_parents(parent)
+            created = make_parents(parent)
             fd, tmp = tempfile.mkstemp(prefix=TMP_PREFIX, suffix=TMP_SUFFIX, dir=parent)
         except OSError as exc:
-            _remove_dirs(created)
+            remove_dirs(created)
             raise InputError(f"cannot create output {path}: {exc.strerror or exc}") from None
         os.close(fd)
 
@@ -281,7 +281,7 @@ def atomic_file(path, overwrite: bool = False):
             _Phase.committed.append(path)
             return None if overwrite else (lambda: (_unlink(path), _Phase.committed.remove(path)))
 
-        _Phase.actions.append((commit, lambda: (_unlink(tmp), _remove_dirs(created))))
+        _Phase.actions.append((commit, lambda: (_unlink(tmp), remove_dirs(created))))
         os.chmod(tmp, _umask_mode(0o666))
         yield tmp
 
@@ -301,18 +301,23 @@ def _strip_sep(path: str) -> str:
     return path.rstrip(seps) or path[:1]
 
 
-def _make_parents(parent: str) -> list:
-    """Create `parent` and its missing ancestors; returns those created, deepest first."""
+def make_parents(parent: str) -> list:
+    """Create `parent` and its missing ancestors; returns those created, deepest first.
+    OSError when one cannot be created (those made before it removed again)."""
     missing, p = [], parent
     while not os.path.isdir(p) and os.path.dirname(p) != p:
         missing.append(p)
         p = os.path.dirname(p)
-    os.makedirs(parent, exist_ok=True)
+    try:
+        os.makedirs(parent, exist_ok=True)
+    except OSError:
+        remove_dirs(missing)
+        raise
     return missing
 
 
-def _remove_dirs(created: list) -> None:
-    """Remove directories `_make_parents` created (if still empty): a failed write leaves nothing."""
+def remove_dirs(created: list) -> None:
+    """Remove directories `make_parents` created (if still empty): a failed write leaves nothing."""
     for d in created:
         with suppress(OSError):
             os.rmdir(d)
@@ -340,10 +345,10 @@ def atomic_dir(path, overwrite: bool = False):
     with write_phase():
         created = []
         try:
-            created = _make_parents(parent)
+            created = make_parents(parent)
             tmp = tempfile.mkdtemp(prefix=TMP_PREFIX, suffix=TMP_SUFFIX, dir=parent)
         except OSError as exc:
-            _remove_dirs(created)
+            remove_dirs(created)
             raise InputError(f"cannot create output {path}: {exc.strerror or exc}") from None
 
         def commit():
@@ -367,7 +372,7 @@ def atomic_dir(path, overwrite: bool = False):
             _Phase.committed.append(path)
             return undo
 
-        _Phase.actions.append((commit, lambda: (shutil.rmtree(tmp, ignore_errors=True), _remove_dirs(created))))
+        _Phase.actions.append((commit, lambda: (shutil.rmtree(tmp, ignore_errors=True), remove_dirs(created))))
         os.chmod(tmp, _umask_mode(0o777))
         yield tmp
 

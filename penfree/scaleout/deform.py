@@ -134,7 +134,7 @@ def deform_many(specs, output, *, options, overwrite=False, with_stats=False, wo
     else: no other file or folder in the output directory is touched.
     """
     from ..formats import check_outputs, input_files
-    from ..formats.atomic import check_file_name
+    from ..formats.atomic import check_file_name, make_parents, remove_dirs
 
     inputs = expand_inputs(specs)
     outs = deform_outputs(specs, inputs, output)
@@ -145,7 +145,10 @@ def deform_many(specs, output, *, options, overwrite=False, with_stats=False, wo
     for p in inputs:  # a bad layout, topology or attribute fails here, before a cluster starts
         _check_input(p, fmt)
     outdir = os.path.dirname(os.path.abspath(outs[0]))
-    created = _make_dirs(outdir)
+    try:
+        created = make_parents(outdir)
+    except OSError as exc:
+        raise InputError(f"cannot create output directory {outdir}: {exc.strerror or exc}") from None
     try:
         stage = _own_folder(outdir)
         try:
@@ -156,7 +159,7 @@ def deform_many(specs, output, *, options, overwrite=False, with_stats=False, wo
         finally:  # the run's own folder (on a local cluster its workers are gone by now)
             shutil.rmtree(stage, ignore_errors=True)
     except BaseException:
-        _remove_dirs(created)
+        remove_dirs(created)
         raise
     return [(path, out, results[index[f.key]]) for path, out, f in zip(inputs, outs, final)]
 
@@ -174,28 +177,6 @@ def _check_input(path, fmt):
         read_sequence(path, format="hdf5", frame_window=(0, 2))
     else:
         read_sequence(path, format=fmt)
-
-
-def _make_dirs(outdir) -> list:
-    """Create `outdir` and its missing parents; those created, deepest first."""
-    missing, p = [], outdir
-    while not os.path.isdir(p) and os.path.dirname(p) != p:
-        missing.append(p)
-        p = os.path.dirname(p)
-    try:
-        os.makedirs(outdir, exist_ok=True)
-    except OSError as exc:
-        _remove_dirs(missing)
-        raise InputError(f"cannot create output directory {outdir}: {exc.strerror or exc}") from None
-    return missing
-
-
-def _remove_dirs(created):
-    for d in created:  # only if still empty
-        try:
-            os.rmdir(d)
-        except OSError:
-            pass
 
 
 def _own_folder(outdir) -> str:
