@@ -293,7 +293,8 @@ def output_files(path: str, n_frames: int) -> list:
 
 
 def _series_regex(base: str) -> re.Pattern:
-    """Names of the series of `base` (``frame_%04d.ply``) whatever their padding: ``frame_3.ply``, ``frame_00003.ply``."""
+    """Names of the series of `base` (``frame_%04d.ply``) whatever their padding:
+    ``frame_3.ply``, ``frame_00003.ply``."""
     parts = PRINTF_DIRECTIVE.split(base)
     return re.compile("^" + re.escape(parts[0]) + r"(\d+)" + re.escape(parts[3]) + "$")
 

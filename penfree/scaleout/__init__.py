@@ -13,8 +13,9 @@ with a frame slice.
 
 Outputs. ``deform`` of one input file writes the ``-o`` file, as a serial run; several
 inputs (several files, a directory of recordings, a pattern) write ``<dir>/<stem>.h5``.
-Every input is read and validated on the driver first, as a serial run reads it, so a
-bad input fails before a cluster starts and nothing is written. A ``deform`` run then
+Every input's layout, topology and attributes are validated on the driver first (of an
+HDF5 file only its first two frames are read; the tasks validate the frames they read),
+so a bad input fails before a cluster starts and nothing is written. A ``deform`` run then
 works in a folder of its own, a new ``.pfXXXXXXXX.tmp`` in the output directory: a file
 that is one task is deformed and written there by that task on its worker; each range of
 a split file writes a partial result into ``<stem>.parts/`` there, and one more task,

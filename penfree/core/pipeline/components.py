@@ -136,9 +136,9 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
     Within a group the exact certificate of its map makes every path safe (SPEC
     section 5); between groups the conservative CCD does, in the deform-result reading
     (pairs resting inside the thickness must stay disjoint); two groups with a pair
-    touching at the start share a map, under which it stays as it was. A violation the CCD cannot attribute to two different
-    groups (a near-miss flagged inside one certified group) merges everything into one
-    global map, which is certified.
+    touching at the start share a map, under which it stays as it was. A violation the
+    CCD cannot attribute to two different groups (a near-miss flagged inside one
+    certified group) merges everything into one global map, which is certified.
     """
     t0 = time.perf_counter()
     from ..verify.path import verify_step  # the CCD stage; imported here to keep start-up light

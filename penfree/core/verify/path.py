@@ -217,7 +217,8 @@ def _pairs_between(col, body, ob, name, thickness, start=None, pre=None):
     if len(ob.V) and len(body.F):
         fv = vertex_face_candidates_between(X0, X1, ob.V + n, body.F, infl)
         idx = np.concatenate([fv[:, :1], body.F[fv[:, 1]]], axis=1)
-        _narrow(col, f"fv:{name}", fv[:, ::-1] - np.array([0, n]), idx, X0, X1, "vf", thickness, start, pre, one_map=False)
+        _narrow(col, f"fv:{name}", fv[:, ::-1] - np.array([0, n]), idx, X0, X1, "vf", thickness, start, pre,
+                one_map=False)
 
 
 @njit(cache=True)
