@@ -175,17 +175,15 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
             A[list(key)], b[list(key)] = r.A, r.b
         if len(fitted) == 1:
             break
+        # A pair touching at the start is left as it was only under one nonsingular map
+        # (`movers`): across two groups' maps one primitive may be pushed through the other.
         res = verify_step(x, x_def, edges=edges, faces=faces, thickness=thickness, max_pairs=_ALL_PAIRS,
-                          start_intersections=False, pre_existing=True)
-        # A pair touching at the start is left as it was only under one nonsingular map:
-        # across two groups' maps one primitive may be pushed through the other.
-        across = [(kind, i, j) for kind, i, j in res.pre_existing
-                  if len(np.unique(group[labels[np.concatenate(_primitive_vertices(kind, i, j, res, faces_arr))]])) > 1]
-        if res.ok and not across:
+                          start_intersections=False, pre_existing=True, movers=group[labels])
+        if res.ok:
             break
         before = group.copy()
         if res.start_ok:
-            for kind, i, j in [p[:3] for p in res.pairs] + across:
+            for kind, i, j in [p[:3] for p in res.pairs]:
                 va, vb = _primitive_vertices(kind, i, j, res, faces_arr)
                 touched = np.unique(group[labels[np.concatenate([va, vb])]])
                 group[np.isin(group, touched)] = touched[0]

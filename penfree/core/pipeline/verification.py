@@ -12,13 +12,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...constants import DEFAULT_MAX_PAIRS
+from ...constants import DEFAULT_MAX_PAIRS, UNIT_ROUNDOFF
 from ...errors import InputError
 from ..contact.obstacles import as_verify_obstacles
 from ..fit.certificate import certify
 from ..topology import as_topology, referenced_vertices, scene_edges
 from ..verify.affine import verify_affine_step
-from ..verify.gate import margin_rule
+from ..verify.gate import margin_rule, on_map
 from ..verify.path import check_thickness, verify_step
 from ..verify.result import VerifyResult
 from ..verify.reuse import result_lists
@@ -176,6 +176,7 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
     if "deformed" not in st:
         raise InputError(f"{res.origin} holds no steps/deformed to verify in {res.origin}:/steps/deformed")
     claimed = st.get("certificate_margin")
+    unit = 2.0**-24 if np.asarray(st["deformed"]).dtype.itemsize < 8 else UNIT_ROUNDOFF
     rep = VerifyReport(res.origin, "result", h, mode)
     nl = _result_lists(seq, mode)
     for k, s in enumerate(np.asarray(st["frame"]).tolist()):
@@ -195,8 +196,9 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
             r = VerifyResult(ok=False, start_ok=True, min_separation=0.0, method="certificate")
         if r is None:
             obs, names = _obstacles(seq, s, s)
+            movers = _movers(res, k, x, x_def, per_component, unit)
             r = verify_step(x, x_def, edges=seq.edges, faces=seq.faces, thickness=h, obstacles=obs,
-                            obstacle_names=names, max_pairs=max_pairs, pre_existing=True)
+                            obstacle_names=names, max_pairs=max_pairs, pre_existing=True, movers=movers)
         is_claimed = claimed is not None and bool(np.isfinite(claimed[k]) and claimed[k] >= 0)
         rep.steps.append(StepReport(s, "deformed", r, cert, float(m), is_claimed, strict))
         if progress is not None:
@@ -219,6 +221,55 @@ def _result_lists(seq, mode):
     if not referenced_vertices(n, F, E).all():
         return None
     return result_lists(E, F)
+
+
+def _movers(res, k, x, x_def, per_component, unit):
+    """(N,) int for `verify_step`: which of step k's maps moves each vertex (-1: none).
+
+    A vertex is moved by a map when the map is nonsingular (``certify(A, 0)``) and ``x_def``
+    is that map's image up to rounding (`gate.on_map`, `unit`: the stored dtype's):
+    the file's claim is checked, never trusted. The maps: ``steps/A`` and ``steps/b``,
+    or for a per-component step ``component_maps/labels``, ``A`` and ``b`` (components
+    with equal maps share an id).
+    """
+    n = len(x)
+    out = np.full(n, -1, dtype=np.int64)
+    if not per_component:
+        rows = [(np.asarray(res.steps["A"][k], np.float64), np.asarray(res.steps["b"][k], np.float64),
+                 np.arange(n))]
+    else:
+        rows = _component_rows(res, k, n)
+    ids = {}
+    for A, b, idx in rows:
+        if not (np.isfinite(A).all() and np.isfinite(b).all()) or not certify(A, 0.0):
+            continue
+        g = ids.setdefault((A.tobytes(), b.tobytes()), len(ids))
+        idx = idx[on_map(x[idx], x_def[idx], A, b, unit)]
+        out[idx] = g
+    return out
+
+
+def _component_rows(res, k, n):
+    """``[(A, b, vertices)]`` of step k's components (``component_maps/``); a missing or
+    malformed ``labels`` is unusable input."""
+    comp = res.groups.get("component_maps", {})
+    where = f"{res.origin}:/component_maps"
+    labels, A, b = comp.get("labels"), np.asarray(comp.get("A")), comp.get("b")
+    if labels is None or b is None or isinstance(labels, dict) or isinstance(b, dict):
+        raise InputError(f"a per-component step needs component_maps/labels and component_maps/b; "
+                         f"not found in {where}")
+    labels, b = np.asarray(labels), np.asarray(b)
+    C = A.shape[1]
+    if labels.shape != (n,) or (n and labels.dtype.kind not in "iu") or (n and not (labels >= 0).all()) \
+            or (n and not (labels < C).all()):
+        raise InputError(f"component_maps/labels must be ({n},) integers in [0, {C - 1}]; got {labels.shape} "
+                         f"{labels.dtype} in {where}/labels")
+    if b.shape != (A.shape[0], C, 3):
+        raise InputError(f"component_maps/b must be {(A.shape[0], C, 3)}; got {b.shape} in {where}/b")
+    order = np.argsort(labels, kind="stable")
+    starts = np.searchsorted(labels[order], np.arange(C + 1))
+    return [(np.asarray(A[k, c], np.float64), np.asarray(b[k, c], np.float64), order[starts[c]:starts[c + 1]])
+            for c in range(C)]
 
 
 def _component_maps(res, k):

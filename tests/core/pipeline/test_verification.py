@@ -1,8 +1,10 @@
 """The sequence-level verification driver `verify_sequence`: frames, obstacles, start states."""
 
 import numpy as np
+import pytest
 
 from penfree.core.pipeline.verification import verify_sequence
+from penfree.errors import InputError
 
 from _geom import grid, two_sheets
 
@@ -38,3 +40,64 @@ def test_sequence_rechecks_start_intersections_after_a_failed_step():
     assert [s.result.n_start_violations for s in rep.steps] == [2, 2]
     clean = verify_sequence(Sequence(positions=np.stack([V + [0, 0, 0.1 * s] for s in range(4)]), faces=F).validate())
     assert clean.ok and len(clean.steps) == 3
+
+
+def _apex_on_a_face(tmp_path, name, x_def, A, b, groups=None, dtype=np.float64):
+    """A result file: a triangle's apex (vertex 3) rests exactly on face 0 at the start."""
+    from penfree.formats.result import write_result
+    from penfree.sequence import Sequence
+
+    x = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.25, 0.25, 0], [0.5, 0.1, -1], [0.1, 0.5, -1.0]])
+    x_prev = x - [0, 0, 0.3]
+    seq = Sequence(positions=np.stack([x_prev, x, x]).astype(dtype), faces=np.array([[0, 1, 2], [3, 4, 5]])).validate()
+    steps = {"frame": np.array([1]), "A": np.asarray(A, float)[None], "b": np.asarray(b, float)[None],
+             "deformed": np.asarray(x_def, float)[None], "certificate_margin": np.array([0.0])}
+    write_result(tmp_path / name, seq, steps, {}, groups=groups)
+    return tmp_path / name, x
+
+
+@pytest.mark.parametrize("mode", ["auto", "ccd"])
+def test_a_touching_pair_is_excused_only_when_one_map_moves_it(tmp_path, mode):
+    """A pair touching at the start is pre-existing only when one nonsingular map moves
+    both its primitives: the file's maps are checked against its x_def, never trusted.
+    Before, verify passed a result pushing the apex up through face 0 (rc 0) whether
+    its steps/A (the identity) had moved nothing or two components' maps moved the
+    two triangles apart."""
+    from penfree.core.pipeline.verification import verify_file
+
+    x = _apex_on_a_face(tmp_path, "probe.h5", np.zeros((6, 3)), np.eye(3), np.zeros(3))[1]
+    up = x + np.r_[np.zeros((3, 3)), np.tile([0, 0, 0.3], (3, 1))]
+    nan = np.full((3, 3), np.nan), np.full(3, np.nan)
+    two = {"component_maps": {"labels": np.array([0, 0, 0, 1, 1, 1]), "A": np.stack([np.eye(3)] * 2)[None],
+                              "b": np.array([[[0, 0, 0], [0, 0, 0.3]]])}}
+    one = {"component_maps": {"labels": np.array([0, 0, 0, 1, 1, 1]), "A": np.stack([np.eye(3)] * 2)[None],
+                              "b": np.array([[[0, 0, 0.3], [0, 0, 0.3]]])}}
+    cases = {  # name: (x_def, A, b, groups, dtype, verdict)
+        "forged_map": (up, np.eye(3), np.zeros(3), None, np.float64, False),
+        "two_maps": (up, *nan, two, np.float64, False),
+        "singular_map": (up, np.diag([1.0, 1.0, 0.0]), [0, 0, 0.3], None, np.float64, False),
+        "one_map": (x + [0, 0, 0.3], np.eye(3), [0, 0, 0.3], None, np.float64, True),
+        "one_map_twice": (x + [0, 0, 0.3], *nan, one, np.float64, True),
+        "one_map_float32": ((x + [0.1, 0.2, 0.3]).astype(np.float32), np.eye(3), [0.1, 0.2, 0.3], None,
+                            np.float32, True),
+    }
+    for name, (x_def, A, b, groups, dtype, verdict) in cases.items():
+        path = _apex_on_a_face(tmp_path, name + ".h5", x_def, A, b, groups, dtype)[0]
+        rep = verify_file(path, mode=mode)
+        assert rep.ok is verdict, name
+        assert rep.steps[0].result.n_pre_existing > 0, name  # the start contact is reported either way
+        if not verdict:
+            assert ("vf", 3, 0) in [p[:3] for p in rep.steps[0].result.pairs], name
+
+
+def test_malformed_component_labels_are_unusable_input(tmp_path):
+    from penfree.core.pipeline.verification import verify_file
+
+    x = _apex_on_a_face(tmp_path, "x.h5", np.zeros((6, 3)), np.eye(3), np.zeros(3))[1]
+    nan = np.full((3, 3), np.nan), np.full(3, np.nan)
+    for k, labels in enumerate([np.array([0, 0, 0, 1, 1]), np.array([0, 0, 0, 1, 1, 2]), np.zeros(6)]):
+        groups = {"component_maps": {"labels": labels, "A": np.stack([np.eye(3)] * 2)[None],
+                                     "b": np.zeros((1, 2, 3))}}
+        path = _apex_on_a_face(tmp_path, f"bad{k}.h5", x + [0, 0, 0.3], *nan, groups)[0]
+        with pytest.raises(InputError, match="component_maps/labels must be"):
+            verify_file(path, mode="ccd")
