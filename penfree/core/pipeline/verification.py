@@ -186,8 +186,8 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         x_def = np.asarray(st["deformed"][k], dtype=np.float64)
         A, b = np.asarray(st["A"][k], np.float64), np.asarray(st["b"][k], np.float64)
         per_component = not np.isfinite(A).all()
-        maps = _component_maps(res, k) if per_component else [A]
-        cert = all(certify(A_c, m) for A_c in maps)
+        rows = _component_rows(res, k, len(x)) if per_component else [(A, b, np.arange(len(x)))]
+        cert = all(certify(A_c, m) for A_c in np.unique(np.array([r[0] for r in rows]), axis=0))
         r = None
         if mode != "ccd" and not seq.obstacles and not per_component:
             r = verify_affine_step(x, x_def, A, b, edges=seq.edges, faces=seq.faces, thickness=h, max_pairs=max_pairs,
@@ -196,7 +196,7 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
             r = VerifyResult(ok=False, start_ok=True, min_separation=0.0, method="certificate")
         if r is None:
             obs, names = _obstacles(seq, s, s)
-            movers = _movers(res, k, x, x_def, per_component, unit)
+            movers = _movers(rows, x, x_def, unit)
             r = verify_step(x, x_def, edges=seq.edges, faces=seq.faces, thickness=h, obstacles=obs,
                             obstacle_names=names, max_pairs=max_pairs, pre_existing=True, movers=movers)
         is_claimed = claimed is not None and bool(np.isfinite(claimed[k]) and claimed[k] >= 0)
@@ -223,63 +223,56 @@ def _result_lists(seq, mode):
     return result_lists(E, F)
 
 
-def _movers(res, k, x, x_def, per_component, unit):
-    """(N,) int for `verify_step`: which of step k's maps moves each vertex (-1: none).
+def _movers(rows, x, x_def, unit):
+    """(N,) int for `verify_step`: which of a step's maps moves each vertex (-1: none).
 
-    A vertex is moved by a map when the map is nonsingular (``certify(A, 0)``) and ``x_def``
-    is that map's image up to rounding (`gate.on_map`, `unit`: the stored dtype's):
-    the file's claim is checked, never trusted. The maps: ``steps/A`` and ``steps/b``,
-    or for a per-component step ``component_maps/labels``, ``A`` and ``b`` (components
-    with equal maps share an id).
+    `rows`: ``[(A, b, vertices)]``, the step's map (``steps/A``, ``steps/b``) or its
+    components' (`_component_rows`). A vertex is moved by a map when the map is
+    nonsingular (``certify(A, 0)``) and ``x_def`` is its image up to rounding
+    (`gate.on_map`, `unit`: the stored dtype's): the file's claim is checked, never
+    trusted. Components with equal maps share an id.
     """
-    n = len(x)
-    out = np.full(n, -1, dtype=np.int64)
-    if not per_component:
-        rows = [(np.asarray(res.steps["A"][k], np.float64), np.asarray(res.steps["b"][k], np.float64),
-                 np.arange(n))]
-    else:
-        rows = _component_rows(res, k, n)
+    out = np.full(len(x), -1, dtype=np.int64)
     ids = {}
     for A, b, idx in rows:
-        if not (np.isfinite(A).all() and np.isfinite(b).all()) or not certify(A, 0.0):
+        if not certify(A, 0.0):
             continue
         g = ids.setdefault((A.tobytes(), b.tobytes()), len(ids))
-        idx = idx[on_map(x[idx], x_def[idx], A, b, unit)]
-        out[idx] = g
+        out[idx[on_map(x[idx], x_def[idx], A, b, unit)]] = g
     return out
 
 
 def _component_rows(res, k, n):
-    """``[(A, b, vertices)]`` of step k's components (``component_maps/``); a missing or
-    malformed ``labels`` is unusable input."""
+    """``[(A, b, vertices)]`` of per-component step k (``component_maps/A``, ``b``,
+    ``labels``), validated: a step whose ``steps/A`` is NaN needs them all."""
     comp = res.groups.get("component_maps", {})
     where = f"{res.origin}:/component_maps"
-    labels, A, b = comp.get("labels"), np.asarray(comp.get("A")), comp.get("b")
-    if labels is None or b is None or isinstance(labels, dict) or isinstance(b, dict):
-        raise InputError(f"a per-component step needs component_maps/labels and component_maps/b; "
-                         f"not found in {where}")
-    labels, b = np.asarray(labels), np.asarray(b)
+    S = len(res.steps["frame"])
+    arrays = {}
+    for name in ("A", "b", "labels"):
+        v = comp.get(name) if isinstance(comp, dict) else None
+        arrays[name] = None if v is None or isinstance(v, dict) else np.asarray(v)
+    A, b, labels = arrays["A"], arrays["b"], arrays["labels"]
+    if A is None or A.dtype.kind not in "iuf" or A.ndim != 4 or A.shape[0] != S or A.shape[2:] != (3, 3):
+        got = "nothing" if A is None else f"{A.shape} {A.dtype}"
+        raise InputError(f"steps/A of step {k} is NaN (a per-component step): component_maps/A must be "
+                         f"({S}, C, 3, 3) numeric; got {got} in {where}/A")
     C = A.shape[1]
-    if labels.shape != (n,) or (n and labels.dtype.kind not in "iu") or (n and not (labels >= 0).all()) \
-            or (n and not (labels < C).all()):
-        raise InputError(f"component_maps/labels must be ({n},) integers in [0, {C - 1}]; got {labels.shape} "
-                         f"{labels.dtype} in {where}/labels")
-    if b.shape != (A.shape[0], C, 3):
-        raise InputError(f"component_maps/b must be {(A.shape[0], C, 3)}; got {b.shape} in {where}/b")
+    if b is None or b.dtype.kind not in "iuf" or b.shape != (S, C, 3):
+        got = "nothing" if b is None else f"{b.shape} {b.dtype}"
+        raise InputError(f"component_maps/b must be ({S}, {C}, 3) numeric; got {got} in {where}/b")
+    if labels is None or labels.shape != (n,) or (n and labels.dtype.kind not in "iu") \
+            or (n and not ((labels >= 0) & (labels < C)).all()):
+        got = "nothing" if labels is None else f"{labels.shape} {labels.dtype}"
+        raise InputError(f"component_maps/labels must be ({n},) integers in [0, {C - 1}]; got {got} "
+                         f"in {where}/labels")
+    if not (np.isfinite(A[k]).all() and np.isfinite(b[k]).all()):
+        raise InputError(f"steps/A of step {k} is not finite and no finite per-component maps were found "
+                         f"in {where}/A")
     order = np.argsort(labels, kind="stable")
     starts = np.searchsorted(labels[order], np.arange(C + 1))
-    return [(np.asarray(A[k, c], np.float64), np.asarray(b[k, c], np.float64), order[starts[c]:starts[c + 1]])
+    return [(A[k, c].astype(np.float64), b[k, c].astype(np.float64), order[starts[c]:starts[c + 1]])
             for c in range(C)]
-
-
-def _component_maps(res, k):
-    """Distinct per-component maps of step k (``component_maps/A``), for a step whose
-    ``steps/A`` is NaN; a NaN A without them is unusable input."""
-    comp = res.groups.get("component_maps", {})
-    if "A" not in comp or not np.isfinite(comp["A"][k]).all():
-        raise InputError(f"steps/A of step {k} is not finite and no finite per-component maps were found "
-                         f"in {res.origin}:/component_maps/A")
-    return list(np.unique(np.asarray(comp["A"][k], dtype=np.float64), axis=0))
 
 
 def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEFAULT_MAX_PAIRS, progress=None,

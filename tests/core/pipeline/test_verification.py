@@ -90,14 +90,26 @@ def test_a_touching_pair_is_excused_only_when_one_map_moves_it(tmp_path, mode):
             assert ("vf", 3, 0) in [p[:3] for p in rep.steps[0].result.pairs], name
 
 
-def test_malformed_component_labels_are_unusable_input(tmp_path):
+def test_malformed_component_maps_are_unusable_input(tmp_path):
+    """A per-component step is checked against its component_maps; a missing or
+    malformed one is unusable input naming the dataset (it raised IndexError,
+    TypeError or KeyError, or was read with another step's maps)."""
     from penfree.core.pipeline.verification import verify_file
 
     x = _apex_on_a_face(tmp_path, "x.h5", np.zeros((6, 3)), np.eye(3), np.zeros(3))[1]
     nan = np.full((3, 3), np.nan), np.full(3, np.nan)
-    for k, labels in enumerate([np.array([0, 0, 0, 1, 1]), np.array([0, 0, 0, 1, 1, 2]), np.zeros(6)]):
-        groups = {"component_maps": {"labels": labels, "A": np.stack([np.eye(3)] * 2)[None],
-                                     "b": np.zeros((1, 2, 3))}}
-        path = _apex_on_a_face(tmp_path, f"bad{k}.h5", x + [0, 0, 0.3], *nan, groups)[0]
-        with pytest.raises(InputError, match="component_maps/labels must be"):
+    two, ok_labels, ok_b = np.stack([np.eye(3)] * 2)[None], np.array([0, 0, 0, 1, 1, 1]), np.zeros((1, 2, 3))
+    cases = [({"labels": np.array([0, 0, 0, 1, 1]), "A": two, "b": ok_b}, "labels"),
+             ({"labels": np.array([0, 0, 0, 1, 1, 2]), "A": two, "b": ok_b}, "labels"),
+             ({"labels": np.zeros(6), "A": two, "b": ok_b}, "labels"),
+             ({"A": two, "b": ok_b}, "labels"),
+             ({"labels": ok_labels, "A": np.zeros((1, 2, 3)), "b": ok_b}, "A"),
+             ({"labels": ok_labels, "A": np.repeat(two, 2, axis=0), "b": ok_b}, "A"),
+             ({"labels": ok_labels, "A": np.array(["a"]), "b": ok_b}, "A"),
+             ({"labels": ok_labels, "A": {"x": np.zeros(2)}, "b": ok_b}, "A"),
+             ({"labels": ok_labels, "A": two}, "b"),
+             ({"labels": ok_labels, "A": two * np.nan, "b": ok_b}, "A")]
+    for k, (groups, dataset) in enumerate(cases):
+        path = _apex_on_a_face(tmp_path, f"bad{k}.h5", x + [0, 0, 0.3], *nan, {"component_maps": groups})[0]
+        with pytest.raises(InputError, match=f"in .*bad{k}.h5:/component_maps/{dataset}$"):
             verify_file(path, mode="ccd")
