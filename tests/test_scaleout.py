@@ -249,3 +249,103 @@ def test_stopped_local_run_leaves_no_temporary(inputs, tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         sdeform.deform_many([str(inputs)], str(out), options={"frames": None}, workers=1)
     assert sorted(p.name for p in out.iterdir()) == [".pfkeepme01.tmp"]
+
+
+def _cloth_over_a_rising_plate(path, T=12, nan_frame=None):
+    """A 4 x 4 cloth drifting up over a plate (a mesh obstacle stored per frame) rising below it."""
+    from _scenes import grid_faces, sheet
+
+    from penfree.formats import write_sequence
+    from penfree.sequence import Obstacle, Sequence
+
+    u, v = sheet(4)
+    x = np.array([np.stack([u, v, 0.5 + 0.01 * t + 0.01 * t * u], axis=1) for t in range(T)])
+    P = np.array([[-1, -1, 0], [2, -1, 0], [2, 2, 0], [-1, 2, 0.0]])
+    plate = Obstacle("plate", positions=np.stack([P + [0, 0, 0.005 * t] for t in range(T)]),
+                     faces=np.array([[0, 1, 2], [0, 2, 3]]))
+    write_sequence(str(path), Sequence(positions=x, faces=grid_faces(4), obstacles=[plate], thickness=0.01))
+    if nan_frame is not None:  # a damaged frame (penfree writes only valid sequences)
+        with h5py.File(path, "r+") as f:
+            f["positions"][nan_frame, 2, 1] = np.nan
+    return str(path)
+
+
+def test_merge_reads_the_input_one_frame_at_a_time(tmp_path, monkeypatch):
+    """The merge of a split file streams its frames into the result (`formats.frames`):
+    the input's positions and per-frame obstacle positions are read two frames at a time
+    for the header, then frame by frame, never whole (it read the whole recording); the
+    result equals a serial deform's arrays."""
+    import penfree.formats.hdf5 as hdf5
+    from penfree.core.pipeline.deform import deform_sequence
+    from penfree.formats import read_sequence
+    from penfree.formats.frames import StoredFrames
+    from penfree.formats.result import read_result
+
+    path = _cloth_over_a_rising_plate(tmp_path / "in.h5")
+    opts = {"model": "affine", "projection": "auto", "margin": None, "thickness": None, "per_vertex": False,
+            "frames": None}
+    tasks = plan([path], 1)
+    assert len(tasks) == 2 and all(t.lo is not None for t in tasks)
+    parts = [scaleout.deform_task(t, str(tmp_path), opts, False, 1) for t in tasks]
+    windows, reads = [], []
+    real_positions, real_read = hdf5.read_positions, StoredFrames._read
+    monkeypatch.setattr(hdf5, "read_positions",
+                        lambda ds, where, name="positions", window=None:
+                        windows.append((name, window)) or real_positions(ds, where, name, window))
+    monkeypatch.setattr(StoredFrames, "_read", lambda self, t: reads.append((self.name, t)) or real_read(self, t))
+    scaleout.merge_task(path, str(tmp_path / "out.h5"), parts, opts)
+    assert windows == [("positions", (0, 2)), ("obstacles/plate/positions", (0, 2))]
+    assert sorted(reads) == sorted((name, t) for name in ("positions", "obstacles/plate/positions")
+                                   for t in range(12))
+    monkeypatch.undo()
+    res, seq = read_result(str(tmp_path / "out.h5")), read_sequence(path)
+    ref = deform_sequence(seq, model="affine", per_vertex=False)
+    np.testing.assert_array_equal(res.sequence.positions, seq.positions)
+    np.testing.assert_array_equal(res.sequence.obstacles[0].positions, seq.obstacles[0].positions)
+    for k in ("frame", "A", "b", "deformed", "certificate_margin"):
+        np.testing.assert_array_equal(res.steps[k], ref.steps[k], err_msg=k)
+
+
+def test_split_file_with_a_moving_obstacle_equals_serial(tmp_path, scheduler):
+    path = _cloth_over_a_rising_plate(tmp_path / "in.h5")
+    runner = CliRunner()
+    for name, extra in [("split.h5", ["--scheduler", scheduler]), ("serial.h5", [])]:
+        r = runner.invoke(main, ["deform", path, "-o", str(tmp_path / name), "--model", "auto", *extra])
+        assert r.exit_code == 0, r.output
+    assert_same_result(tmp_path / "split.h5", tmp_path / "serial.h5")
+
+
+def test_split_file_with_nan_beyond_the_selected_frames_fails_like_serial(tmp_path, scheduler):
+    """No range task reads frame 11 (the selection ends at 9); the merge does and names it."""
+    path = _cloth_over_a_rising_plate(tmp_path / "in.h5", nan_frame=11)
+    runner = CliRunner()
+    for name, extra in [("split.h5", ["--scheduler", scheduler]), ("serial.h5", [])]:
+        r = runner.invoke(main, ["deform", path, "-o", str(tmp_path / name), "--frames", "0:10", *extra])
+        assert r.exit_code == 2, r.output
+        assert "frame 11 holds NaN or Inf" in r.output and "in.h5:/positions" in r.output, r.output
+        assert not (tmp_path / name).exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.h5"]
+
+
+def test_large_files_go_in_ranges_of_bounded_size(tmp_path, scheduler, monkeypatch):
+    """A file whose frames exceed `MAX_TASK_BYTES` is deformed in ranges however many files
+    share the workers (a whole-file task reads every frame), a small selection of it in one
+    range; the results equal serial runs."""
+    import sys
+
+    plan_module = sys.modules["penfree.scaleout.plan"]  # the package exports the function `plan`
+    paths = [_cloth_over_a_rising_plate(tmp_path / f"in{k}.h5") for k in range(4)]
+    assert [t.lo for t in plan(paths, 1)] == [None] * 4
+    monkeypatch.setattr(plan_module, "MAX_TASK_BYTES", 2000)  # a frame: 16 x 3 float64 = 384 bytes
+    tasks = plan(paths, 1)
+    assert [(t.lo, t.hi) for t in tasks if t.path == paths[0]] == [(1, 6), (6, 12)]
+    assert [(t.lo, t.hi) for t in plan(paths[:1], 1, frames=(9, 11))] == [(9, 11)]
+    runner = CliRunner()
+    for extra in ([], ["--frames", "9:11"]):
+        out = tmp_path / f"out{len(extra)}"
+        r = runner.invoke(main, ["deform", *paths[:2], "-o", str(out), "--scheduler", scheduler, *extra])
+        assert r.exit_code == 0, r.output
+        for p in paths[:2]:
+            serial = tmp_path / f"serial{len(extra)}-{Path(p).name}"
+            assert runner.invoke(main, ["deform", p, "-o", str(serial), *extra]).exit_code == 0
+            assert_same_result(out / Path(p).name, serial)

@@ -32,6 +32,7 @@ from ._json import json_default
 from ..sequence import OBSTACLE_FORMS, Obstacle, Sequence
 from ._registry import register
 from .atomic import atomic_file
+from .frames import Frames, float_dtype
 
 H5_MAGIC = b"\x89HDF\r\n\x1a\n"
 #: Attributes with a meaning of their own; everything else is carried in ``Sequence.attrs``.
@@ -151,15 +152,6 @@ def _dataset(f, name, where, prefix=""):
     return obj
 
 
-def _float_dtype(ds, where, name) -> np.dtype:
-    dt = np.dtype(ds.dtype)
-    if dt.kind == "f" and dt.itemsize in (4, 8):
-        return dt.newbyteorder("=")
-    if dt.kind in "fiu":
-        return np.dtype(np.float64)
-    raise FormatError(f"{name} must be float32 or float64; got {dt} in {where}:/{name}")
-
-
 def read_positions(ds, where, name="positions", window=None) -> np.ndarray:
     """Read ``(T, N, 3)`` frame by frame into one array, naming the first non-finite frame.
 
@@ -171,7 +163,7 @@ def read_positions(ds, where, name="positions", window=None) -> np.ndarray:
     if ds.shape[0] < 2 and name == "positions":
         raise InputError(f"positions must hold at least 2 frames; got {ds.shape[0]} in {where}:/positions")
     start, stop = frame_window(window, ds.shape[0], where)
-    out = np.empty((stop - start,) + ds.shape[1:], dtype=_float_dtype(ds, where, name))
+    out = np.empty((stop - start,) + ds.shape[1:], dtype=float_dtype(ds, where, name))
     for s in range(start, stop):
         out[s - start] = ds[s]
         if not np.isfinite(out[s - start]).all():
@@ -378,17 +370,21 @@ def write_positions(g, name, positions, dtype=None, source=None) -> None:
     sees an ordinary gzip + shuffle dataset; HDF5 itself compresses one chunk after
     another on the calling thread (2.3 s of a 64K x 100 frames result, issue 13).
 
+    `positions` may be a `frames.Frames`: its frames are read one after another (a long
+    recording is never held whole; `penfree.scaleout`'s merge).
+
     `source` (a file path, or None): where the frames may already be stored, as dataset
     `name` of an HDF5 file (a deform result copies its input's positions). A stored chunk
     is written unchanged when it decompresses to exactly the frame's bytes; inflating and
     comparing costs a fraction of deflating (the 64K x 100 positions of a result: 0.69 ->
     ~0.2 s). Any other chunk, or a changed file, is compressed as usual.
     """
-    positions = np.asarray(positions)
+    streamed = isinstance(positions, Frames)  # read frame by frame (`frames`), never held whole
+    positions = positions if streamed else np.asarray(positions)
     dtype = np.dtype(dtype or positions.dtype)
-    data = positions.astype(dtype, copy=False)
-    chunks = (1,) + positions.shape[1:] if positions.ndim == 3 and positions.size else None
-    if chunks is None or data.shape[0] < _POOL_MIN_FRAMES:
+    data = positions if streamed else positions.astype(dtype, copy=False)
+    chunks = (1,) + positions.shape[1:] if positions.ndim == 3 and np.prod(positions.shape) else None
+    if not streamed and (chunks is None or data.shape[0] < _POOL_MIN_FRAMES):
         g.create_dataset(
             name, data=data, chunks=chunks,
             compression="gzip" if chunks else None, compression_opts=GZIP_LEVEL if chunks else None,
@@ -409,7 +405,8 @@ def write_positions(g, name, positions, dtype=None, source=None) -> None:
                     stored = src.id.read_direct_chunk((t, 0, 0))
                 except (OSError, KeyError, ValueError, RuntimeError):
                     stored = None  # not allocated, unreadable: compress the frame
-            pending.append((t, pool.submit(_reused_or_deflated, data[t], stored)))
+            frame = data.frame(t).astype(dtype, copy=False) if streamed else data[t]
+            pending.append((t, pool.submit(_reused_or_deflated, frame, stored)))
             if len(pending) == 2 * workers:
                 t0, blob = pending.popleft()
                 dset.id.write_direct_chunk((t0, 0, 0), blob.result())

@@ -9,6 +9,10 @@ import os
 
 import numpy as np
 
+from .frames import Frames
+
+_DEFORMED = "steps/deformed"
+
 
 def _flatten(prefix, d, out):
     for k, v in d.items():
@@ -47,18 +51,46 @@ def write_partial(parts, steps, groups) -> str:
     return name
 
 
-def merge_partials(parts) -> tuple:
-    """``(steps, groups)`` of a serial run from partial results in frame order."""
+def merge_partials(parts, stream_deformed=False) -> tuple:
+    """``(steps, groups)`` of a serial run from partial results in frame order.
+
+    `stream_deformed`: ``steps["deformed"]`` is a `PartialFrames` (one partial's states in
+    memory at a time, for `result.write_result`) instead of one array of every step.
+    """
     loaded = []
     for p in parts:
         with np.load(p, allow_pickle=False) as z:
-            loaded.append(_unflatten({k: z[k] for k in z.files}))
+            skip = _DEFORMED if stream_deformed else None
+            loaded.append(_unflatten({k: z[k] for k in z.files if k != skip}))
     steps = {k: np.concatenate([d["steps"][k] for d in loaded]) for k in loaded[0]["steps"]}
+    if stream_deformed:
+        steps["deformed"] = PartialFrames(parts, [len(d["steps"]["frame"]) for d in loaded])
     groups = {}
     for g in loaded[0].get("groups", {}):
         tables = [d["groups"][g] for d in loaded]
         groups[g] = _merge_selection(tables) if g == "selection" else _merge_group(tables)
     return steps, groups
+
+
+class PartialFrames(Frames):
+    """The deformed states of partial results, in frame order; one partial's in memory at a time."""
+
+    def __init__(self, parts, counts):
+        self._parts, self._ends = list(parts), np.cumsum(counts)
+        self._loaded, self._states = -1, None
+        first = self._load(0)
+        super().__init__((int(self._ends[-1]),) + first.shape[1:], first.dtype, self._parts[0], _DEFORMED)
+
+    def _load(self, i):
+        if i != self._loaded:
+            with np.load(self._parts[i], allow_pickle=False) as z:
+                self._states = z[_DEFORMED]
+            self._loaded = i
+        return self._states
+
+    def _read(self, t):
+        i = int(np.searchsorted(self._ends, t, side="right"))
+        return self._load(i)[t - (int(self._ends[i - 1]) if i else 0)]
 
 
 def _merge_group(tables):

@@ -35,6 +35,7 @@ from ..constants import FORMAT_VERSION
 from ..errors import FormatError, InputError
 from ..sequence import Sequence
 from .atomic import atomic_file
+from .frames import Frames
 from .hdf5 import has_h5_magic, open_h5, read_attrs, read_from_h5, write_attrs, write_positions, write_to_h5
 
 #: Per-step datasets that every reader needs (SPEC section 8); others may require more
@@ -92,12 +93,13 @@ def _write_array(g, name, value, deformed_dtype=None):
         for k, v in value.items():
             _write_array(sub, k, v)
         return
+    if deformed_dtype is not None:
+        write_positions(g, name, value, deformed_dtype)
+        return
     a = np.asarray(value)
     if _is_text(a):
         data = np.array([str(x) for x in a.ravel()], dtype=object).reshape(a.shape)
         g.create_dataset(name, data=data, dtype=h5py.string_dtype("utf-8"))
-    elif deformed_dtype is not None:
-        write_positions(g, name, a, deformed_dtype)
     else:
         g.create_dataset(name, data=a)
 
@@ -136,8 +138,9 @@ def _check_steps(steps: dict, T: int, N: int, where: str, require=()) -> int:
             raise FormatError(f"steps/{key} must be {shape}; got {got} in {where}:/steps/{key}")
     for key, value in steps.items():
         if key in NUMERIC_STEPS or key.startswith(NUMERIC_PREFIXES):
-            if np.asarray(value).dtype.kind not in "iuf":
-                raise FormatError(f"steps/{key} must be numeric; got {np.asarray(value).dtype} in {where}:/steps/{key}")
+            dtype = value.dtype if isinstance(value, Frames) else np.asarray(value).dtype
+            if dtype.kind not in "iuf":
+                raise FormatError(f"steps/{key} must be numeric; got {dtype} in {where}:/steps/{key}")
         elif key in TEXT_STEPS and np.asarray(value).dtype.kind not in "USO":
             raise FormatError(f"steps/{key} must be (S,) strings; got {np.asarray(value).dtype} "
                               f"in {where}:/steps/{key}")
@@ -191,8 +194,12 @@ def write_result(path, seq: Sequence, steps: dict, attrs: dict, groups: dict | N
     path : str or os.PathLike
     seq : Sequence
         The input sequence; copied into the file (positions, topology, weights, obstacles, attrs).
+        Its positions (and a mesh obstacle's per-frame positions) may be `frames.Frames`,
+        read and checked one frame at a time; the caller has validated the rest (a
+        header read with a frame window), and `seq.validate` is not run.
     steps : dict of str -> array_like
-        Per-step arrays, see the module docstring; ``deformed`` is cast to the input dtype.
+        Per-step arrays, see the module docstring; ``deformed`` is cast to the input dtype
+        and may be a `frames.Frames` too.
     attrs : dict
         Options, input name, ...; written over the sequence's own attributes (so a
         ``thickness``, ``dt`` or ``source`` key here replaces the sequence's value
@@ -208,7 +215,9 @@ def write_result(path, seq: Sequence, steps: dict, attrs: dict, groups: dict | N
     OutputExistsError, FormatError
     """
     where = str(path)
-    seq.validate()
+    streamed = [a for a in (seq.positions, *(ob.positions for ob in seq.obstacles)) if isinstance(a, Frames)]
+    if not isinstance(seq.positions, Frames):
+        seq.validate()
     _check_steps(steps, seq.n_frames, seq.n_vertices, where)
     for name in groups or {}:
         if name in SEQUENCE_NAMES or "/" in name:
@@ -224,6 +233,8 @@ def write_result(path, seq: Sequence, steps: dict, attrs: dict, groups: dict | N
                 _write_array(g, key, value, deformed_dtype=seq.dtype if key == "deformed" else None)
             for name, content in (groups or {}).items():
                 _write_array(f, name, content)
+        for a in streamed:  # each input frame was checked finite as it was read; now their range
+            a.check_scale()
 
 
 # --- reading -----------------------------------------------------------------

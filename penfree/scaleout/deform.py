@@ -8,6 +8,8 @@ import os
 import shutil
 import tempfile
 
+import numpy as np
+
 from ..errors import InputError
 from ..formats.partials import merge_partials, write_partial
 from .cluster import client, gather, n_workers_of, new_key, set_threads
@@ -65,12 +67,27 @@ def deform_file_task(task, out_path, options, with_stats, threads):
 
 def merge_task(path, out_path, parts, options):
     """Worker: merge the partial results of `path`'s frame ranges, write its result to
-    `out_path` (in the run's own folder) and remove those partial results."""
-    from ..formats import read_sequence
+    `out_path` (in the run's own folder) and remove those partial results.
 
-    steps, groups = merge_partials(sorted(parts))
-    seq = read_sequence(path, format=options.get("format"))
-    _write_output(path, out_path, seq, steps, groups, options)
+    The input's frames and the deformed states go into the result one frame at a time
+    (`formats.frames`): a long recording is never held whole here, as its range tasks
+    each read only their own frames. Ranges are made of HDF5 inputs only (`plan`).
+    """
+    import h5py
+
+    from ..formats import read_sequence
+    from ..formats.frames import StoredFrames
+
+    steps, groups = merge_partials(sorted(parts), stream_deformed=True)
+    seq = read_sequence(path, format=options.get("format"), frame_window=(0, 2))  # all but the frames, validated
+    with h5py.File(path, "r") as f:
+        seq.positions = StoredFrames(f["positions"], path)
+        for ob in seq.obstacles:
+            if ob.positions is not None and np.ndim(ob.positions) == 3:  # per frame: read 2 frames above
+                g = f[f"obstacles/{ob.name}"]
+                name = "positions" if "positions" in g else "vertices"
+                ob.positions = StoredFrames(g[name], path, f"obstacles/{ob.name}/{name}")
+        _write_output(path, out_path, seq, steps, groups, options)
     for p in parts:  # written by this run's range tasks
         os.unlink(p)
     return _light(steps)

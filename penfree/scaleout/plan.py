@@ -20,6 +20,10 @@ FILE_EXTENSIONS = (".h5", ".hdf5")
 TASKS_PER_WORKER = 2
 #: A frame range holds at least this many steps.
 MIN_STEPS_PER_TASK = 4
+#: A deform task holds its frames and their deformed states (two ``(steps, N, 3)`` arrays);
+#: a file whose steps need more is cut into ranges of at most this many bytes of them,
+#: however many workers and files there are (a recording of tens of thousands of frames).
+MAX_TASK_BYTES = 1 << 30
 
 
 def expand_inputs(specs, missing_ok=False) -> list:
@@ -135,17 +139,19 @@ class Task:
 
 
 def _steps_of(path, kind):
-    """(T, steps) of a file, or (None, None) when it is not HDF5 (one task then)."""
+    """(T, steps, bytes of a frame) of a file, or (None, None, 0) when it is not HDF5 (one
+    task then)."""
     try:
         import h5py
 
         with h5py.File(path, "r") as f:
-            T = int(f["positions"].shape[0])
+            ds = f["positions"]
+            T, frame_bytes = int(ds.shape[0]), int(np.prod(ds.shape[1:])) * 8  # read as float64 at most
             if kind == "result":
-                return T, np.unique(np.asarray(f["steps/frame"][()], dtype=np.int64))
+                return T, np.unique(np.asarray(f["steps/frame"][()], dtype=np.int64)), frame_bytes
     except Exception:  # not HDF5 (or unreadable here): the real reader reports it in the task
-        return None, None
-    return T, (np.arange(1, T) if kind == "sequence" else np.arange(0, T - 1))
+        return None, None, 0
+    return T, (np.arange(1, T) if kind == "sequence" else np.arange(0, T - 1)), frame_bytes
 
 
 def _ranges(n, n_parts):
@@ -157,7 +163,10 @@ def _ranges(n, n_parts):
 
 def plan(paths, n_workers, frames=None, kind="sequence") -> list:
     """Tasks for `paths`: one per file, plus step ranges within a file when there are
-    fewer files than ``TASKS_PER_WORKER * n_workers`` (see `Task` for the kinds).
+    fewer files than ``TASKS_PER_WORKER * n_workers`` (see `Task` for the kinds). A file
+    to deform whose frames take more than `MAX_TASK_BYTES` always goes in ranges, each
+    holding at most about that much of frames and deformed states (a whole-file task
+    would read it whole).
 
     With a user frame slice, ranges are cut inside the selected steps; a raw sequence
     to verify with a frame slice stays one task (its steps need both frames selected).
@@ -166,15 +175,20 @@ def plan(paths, n_workers, frames=None, kind="sequence") -> list:
     per_file = max(1, math.ceil(want / max(1, len(paths))))
     tasks = []
     for p in paths:
-        T, steps = _steps_of(p, kind) if per_file > 1 else (None, None)
+        T, steps, frame_bytes = _steps_of(p, kind) if per_file > 1 or kind == "sequence" else (None, None, 0)
         if steps is not None and frames is not None:
             if kind == "path":
                 steps = None
             else:
                 steps = steps[np.isin(steps, np.arange(T)[slice(*frames)])]
-        if steps is None or steps.size < 2 * MIN_STEPS_PER_TASK:
+        # a whole-file deform task reads every frame: a large file goes in ranges of bounded size
+        big = kind == "sequence" and steps is not None and T * frame_bytes > MAX_TASK_BYTES
+        parts = per_file
+        if big:
+            parts = max(parts, math.ceil(2 * (steps.size + 1) * frame_bytes / MAX_TASK_BYTES))
+        if steps is None or not steps.size or (not big and (steps.size < 2 * MIN_STEPS_PER_TASK or parts == 1)):
             tasks.append(Task(p, kind=kind))
             continue
-        for a, b in _ranges(steps.size, per_file):
+        for a, b in _ranges(steps.size, parts):
             tasks.append(Task(p, int(steps[a]), int(steps[b - 1]) + 1, kind))
     return tasks

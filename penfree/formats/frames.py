@@ -1,0 +1,73 @@
+"""Frames read one at a time: a ``(T, N, 3)`` array that a writer streams instead of holding.
+
+`penfree.scaleout` merges the frame ranges of a long recording into one result; the
+result holds the input's positions and every step's deformed state, each as large as
+the recording. The merge hands the writers (`hdf5.write_positions`, `result.write_result`)
+a `Frames` in their place: the writer asks for one frame after another, and only that
+frame (and, for the partial results, one range's deformed states) is in memory.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import FormatError, InputError
+from ..sequence import check_scale
+
+
+def float_dtype(ds, where, name) -> np.dtype:
+    """The native float dtype a stored positions dataset is read as (integers as float64)."""
+    dt = np.dtype(ds.dtype)
+    if dt.kind == "f" and dt.itemsize in (4, 8):
+        return dt.newbyteorder("=")
+    if dt.kind in "fiu":
+        return np.dtype(np.float64)
+    raise FormatError(f"{name} must be float32 or float64; got {dt} in {where}:/{name}")
+
+
+class Frames:
+    """A read-once ``(T, N, 3)`` float array: ``shape``, ``dtype``, ``ndim`` and ``frame(t)``.
+
+    Subclasses implement `_read(t)`. Every frame read is checked finite; the largest
+    magnitude seen is kept, so that `check_scale` can judge the whole array once every
+    frame was read (as `Sequence.validate` judges an array in memory).
+    """
+
+    ndim = 3
+
+    def __init__(self, shape, dtype, where, name):
+        self.shape, self.dtype = tuple(int(s) for s in shape), np.dtype(dtype)
+        self.where, self.name = where, name
+        self._big = 0.0
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def frame(self, t: int) -> np.ndarray:
+        """Frame `t` as ``(N, 3)`` of `dtype`; InputError naming it when not finite."""
+        a = np.asarray(self._read(int(t)), dtype=self.dtype)
+        if not np.isfinite(a).all():
+            raise InputError(f"{self.name} must be finite; frame {t} holds NaN or Inf in {self.where}:/{self.name}")
+        if a.size:
+            self._big = max(self._big, float(np.maximum(a.max(), -a.min())))
+        return a
+
+    def check_scale(self) -> None:
+        """`sequence.check_scale` of every frame read so far, taken together."""
+        check_scale(np.array([self._big]), self.where, self.name)
+
+    def _read(self, t: int) -> np.ndarray:
+        raise NotImplementedError
+
+
+class StoredFrames(Frames):
+    """The frames of an open HDF5 dataset ``(T, N, 3)`` (float, or integers read as float64)."""
+
+    def __init__(self, ds, where, name="positions"):
+        if ds.ndim != 3 or ds.shape[2] != 3:
+            raise FormatError(f"{name} must be (T, N, 3); got {ds.shape} in {where}:/{name}")
+        super().__init__(ds.shape, float_dtype(ds, where, name), where, name)
+        self._ds = ds
+
+    def _read(self, t):
+        return self._ds[t]
