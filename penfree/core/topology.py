@@ -253,6 +253,18 @@ def referenced_vertices(n_vertices: int, *topologies) -> np.ndarray:
     return used
 
 
+def separation_vertices(n_vertices: int, F, E) -> np.ndarray:
+    """(n_vertices,) bool: the vertices that can have a separation term (SPEC section 7).
+
+    Every vertex of a triangle scene (a vertex in no primitive still has its nearest
+    face, and is a face's nearest vertex: ipctk counts such points too); the edges'
+    vertices of a segment scene, whose terms are edge-edge only.
+    """
+    if F is not None and np.size(F):
+        return np.ones(n_vertices, dtype=bool)
+    return referenced_vertices(n_vertices, F, E)
+
+
 @njit(cache=True)
 def _mark(used, idx):
     # used[idx] = True without numpy's fancy-index machinery (0.9 -> ~0.2 ms for a 64K

@@ -65,7 +65,7 @@ from .broad_phase import _PRUNE_SLACK, _box_arrays, _gap_sq, _Plan, fold_pair_mi
 from .distance import edge_edge_sq, point_triangle_sq
 from ..parallel import parallel_kernel
 from ...errors import InputError
-from ..topology import as_positions, as_topology, referenced_vertices, scene_edges
+from ..topology import as_positions, as_topology, scene_edges, separation_vertices
 
 #: Skins tried by the cost model, relative to the query radius.
 SKIN_CANDIDATES_REL = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
@@ -377,7 +377,7 @@ class NeighbourList:
             lo, hi = _box_arrays(x, x, E, infl)
             self.P_ee = _Plan(lo, hi, E, lo, hi, E, True).pairs()
         if F.shape[0]:
-            used = referenced_vertices(n, F, E)
+            used = separation_vertices(n, F, E)
             Q = np.ascontiguousarray(np.flatnonzero(used).astype(np.int64)[:, None])
             loA, hiA = _box_arrays(x, x, Q, infl)
             loF, hiF = _box_arrays(x, x, F, infl)

@@ -43,7 +43,7 @@ import numpy as np
 
 from ...constants import REDUCTION_CHUNKS
 from ...errors import InputError
-from ..topology import referenced_vertices
+from ..topology import separation_vertices
 from .broad_phase import _box_arrays, _Plan, choose_cells, fold_min_sq
 
 #: Cap on the per-chunk partial minima, in float64 entries (32 MiB).
@@ -120,8 +120,9 @@ def per_vertex_separation(x, E, F, radius, reach=None, cells=("cube", "cube")):
         ``d[v] = min(radius, terms)`` with the terms of SPEC section 7:
         vertex-face distances fold into the vertex and into the face's three
         vertices, edge-edge distances (edges sharing no vertex) into the four
-        vertices. A vertex in no primitive, or with nothing within `radius`,
-        gets `radius`.
+        vertices; in a triangle scene every vertex meets the faces, also one in no
+        primitive (`topology.separation_vertices`). A vertex with nothing within
+        `radius` (or, in a segment scene, in no edge) gets `radius`.
 
     Notes
     -----
@@ -157,8 +158,8 @@ def complete_separations(x, E, F, radius, reach, d):
     r, rho = float(radius), float(reach)
     mag = float(np.abs(x).max()) if x.size else 0.0
     tau = rho - 2.0 * _REACH_SLACK * (rho + mag)
-    used = referenced_vertices(x.shape[0], F, E)
-    d[~used] = r  # in no primitive: nothing within any radius
+    used = separation_vertices(x.shape[0], F, E)
+    d[~used] = r  # no term (a segment scene's vertex in no edge): nothing within any radius
     C = used & (d >= tau)
     n_c = int(np.count_nonzero(C))
     if n_c > COMPLETE_MAX * x.shape[0]:
@@ -185,13 +186,13 @@ def _separations(x, E, F, radius, cells=("cube", "cube")):
     if E.shape[0]:
         fold_min_sq(x, E, E, inflation, partial, self_query=True, cells=cells[0])
     if F.shape[0]:
-        Q = _face_vertices(referenced_vertices(n, F, E))
+        Q = _face_vertices(separation_vertices(n, F, E))
         fold_min_sq(x, Q, F, inflation, partial, self_query=False, cells=cells[1])
     return capped_separations(partial, radius)
 
 
 def _face_vertices(used):
-    """(V, 1) int64: the vertices of mask `used` (those in a primitive), the rows of the
+    """(V, 1) int64: the vertices of mask `used` (`separation_vertices`), the rows of the
     vertex-face folds."""
     return np.ascontiguousarray(np.flatnonzero(used).astype(np.int64)[:, None])
 
@@ -203,7 +204,7 @@ def separation_cells(x, E, F, radius) -> tuple:
     ee = choose_cells(x, E, E, inflation, True) if E.shape[0] else "cube"
     vf = "cube"
     if F.shape[0]:
-        vf = choose_cells(x, _face_vertices(referenced_vertices(x.shape[0], F, E)), F, inflation, False)
+        vf = choose_cells(x, _face_vertices(separation_vertices(x.shape[0], F, E)), F, inflation, False)
     return ee, vf
 
 

@@ -18,7 +18,7 @@ from ...constants import DEFAULT_GAMMA, DEFAULT_RADIUS_FRACTION
 from ...errors import InputError
 from ..contact.broad_phase import fold_min_sq
 from ..contact.proximity import per_vertex_separation
-from ..topology import as_positions, as_topology, referenced_vertices, scene_edges
+from ..topology import as_positions, as_topology, scene_edges
 
 def scene_arrays(x, edges, faces):
     """Validated ``x (N, 3) float64``, ``E (M, 2) int64``, ``F (K, 3) int64``.
@@ -88,7 +88,7 @@ def _mesh_separation(x, E, F, ob, radius, s):
     _, Eo, Fo = scene_arrays(P, ob.edges, ob.faces)
     X = np.ascontiguousarray(np.concatenate([x, P]))
     Eo, Fo = Eo + n, Fo + n
-    Vs = np.ascontiguousarray(np.flatnonzero(referenced_vertices(n, F, E)).astype(np.int64)[:, None])
+    Vs = np.arange(n, dtype=np.int64)[:, None]  # every vertex meets the obstacle's faces (as a half-space)
     Vo = np.ascontiguousarray(np.unique(np.concatenate([Eo.ravel(), Fo.ravel()])).astype(np.int64)[:, None])
     partial = np.full((1, X.shape[0]), np.inf)
     infl = 0.5 * radius
@@ -136,7 +136,7 @@ def trust_region_bounds(x, *, edges=None, faces=None, thickness=0.0, gamma=DEFAU
         ``d_v = min(r_q, terms)`` with the terms of SPEC section 7 (see
         `per_vertex_separation`); 0 where a gap is already below the
         thickness, never negative; ``gamma * (r_q - thickness)`` for a vertex
-        with nothing within r_q or in no primitive.
+        with nothing within r_q (or, in a segment scene, in no edge).
 
     Notes
     -----

@@ -61,7 +61,8 @@ class _Body:
         self.F = as_topology(faces, 3, n, f"{name} faces") if faces is not None else np.zeros((0, 3), np.int64)
         E = as_topology(edges, 2, n, f"{name} edges") if edges is not None else np.zeros((0, 2), np.int64)
         self.E = scene_edges(E, self.F)
-        self.V = np.arange(n, dtype=np.int64) if len(self.F) or len(self.E) else np.zeros(0, np.int64)
+        # every vertex, also of a scene without primitives (particles still meet obstacle faces)
+        self.V = np.arange(n, dtype=np.int64)
 
 
 def _inflation(thickness, *arrays):

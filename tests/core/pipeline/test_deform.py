@@ -92,6 +92,25 @@ def test_a_sheet_touching_an_obstacle_is_not_pushed_through_it(model, thickness)
     assert not r.ok
 
 
+@pytest.mark.parametrize("thickness", [0.0, 0.01])
+@pytest.mark.parametrize("model", ["affine", "translation", "auto"])
+def test_particles_stay_above_a_mesh_floor(model, thickness):
+    """A scene without edges or faces (particles) falling onto a mesh obstacle: its
+    vertices were in no vertex-face pair with the obstacle (a scene's vertices counted
+    only with primitives), so deform wrote them through the floor and verify passed it
+    (audit); a half-space in the same place was respected."""
+    from penfree.sequence import Obstacle
+
+    tri = np.array([[-5, -5, 0], [5, -5, 0], [0, 5, 0.0]])
+    x = np.array([[0, 0, 0.05], [0.5, 0, 0.05], [0, 0.5, 0.05], [0.5, 0.5, 0.05]])
+    seq = Sequence(positions=np.stack([x + [0, 0, 0.2], x]), thickness=thickness,
+                   obstacles=[Obstacle(name="floor", positions=tri, faces=np.array([[0, 1, 2]]))]).validate()
+    x_def = deform_sequence(seq, model=model).steps["deformed"][0]
+    assert (x_def[:, 2] >= thickness).all()
+    through = verify_step(x, x - [0, 0, 0.2], thickness=thickness, obstacles=[(tri, tri, [[0, 1, 2]], None)])
+    assert not through.ok and {p[0] for p in through.pairs} == {"vf:0"} and through.n_violations == 4
+
+
 def test_deform_stats_defaults_to_the_sequence_values():
     seq = _moving_sheets(gap=1.0, thickness=0.05)
     steps = deform_sequence(seq, model="affine").steps

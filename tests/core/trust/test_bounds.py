@@ -56,8 +56,7 @@ def oracle(x, edges=None, faces=None, thickness=0.0, gamma=GAMMA, r_q=None):
     if faces is not None:
         F = np.asarray(faces)
         E = edges_from_faces(F)
-        used = np.unique(F)
-        v, f = np.meshgrid(used, np.arange(len(F)), indexing="ij")
+        v, f = np.meshgrid(np.arange(n), np.arange(len(F)), indexing="ij")  # every vertex meets the faces
         v, f = v.ravel(), f.ravel()
         keep = np.all(F[f] != v[:, None], axis=1)
         v, f = v[keep], f[keep]
@@ -130,6 +129,30 @@ def test_far_and_unreferenced_vertices_get_the_radius(rng):
     r_default = 0.01 + 0.1 * np.linalg.norm(np.ptp(x, axis=0))
     b = trust_region_bounds(x, edges=E, thickness=0.01)
     assert b[n - 1] == pytest.approx(GAMMA * (r_default - 0.01), rel=1e-15)
+
+
+@pytest.mark.parametrize("thickness", list(THICK.values()), ids=list(THICK))
+def test_free_vertices_near_cloth_match_oracle(rng, thickness):
+    """Vertices in no primitive (particles) among cloth meet its faces: their own bound
+    and those of the faces near them shrink (they kept the radius, ipctk did not: a
+    particle could move into the cloth undetected)."""
+    x, F = crumpled_cloth(11, rng)
+    free = x[rng.choice(len(x), 12, replace=False)] + rng.normal(scale=0.01, size=(12, 3))
+    x = np.concatenate([x, free])
+    b = trust_region_bounds(x, faces=F, thickness=thickness, query_radius=0.1)
+    want = oracle(x, faces=F, thickness=thickness, r_q=0.1)
+    _assert_close(b, want, x)
+    assert (b[-12:] < GAMMA * (0.1 - thickness)).all()
+
+
+def test_particles_over_a_mesh_obstacle(rng):
+    """A scene without primitives over a mesh floor: each particle's bound is its height."""
+    from penfree.sequence import Obstacle
+
+    x = np.c_[rng.uniform(-1, 1, (20, 2)), rng.uniform(0.01, 0.2, 20)]
+    floor = Obstacle("floor", positions=np.array([[-5, -5, 0], [5, -5, 0], [0, 5, 0.0]]), faces=[[0, 1, 2]])
+    b = trust_region_bounds(x, query_radius=0.5, obstacles=[floor])
+    np.testing.assert_allclose(b, GAMMA * x[:, 2], rtol=1e-12)
 
 
 def test_no_primitives_and_zero_radius():

@@ -100,15 +100,22 @@ def test_gate_verdicts_with_and_without_separations(rng):
     assert any(verdicts) and not all(verdicts)
 
 
-def test_near_pairs_ignore_separations_with_a_free_vertex(rng):
-    # A vertex in no primitive has pairs with faces that no separation records: a free
-    # vertex resting on the lower sheet is near it although every sheet vertex is far.
+def test_separations_and_near_pairs_count_a_free_vertex(rng):
+    # A vertex in no primitive still meets faces (SPEC section 7, as ipctk counts such
+    # points): a free vertex resting on the lower sheet is in its own separation and in
+    # those of the faces under it (it was in none: a bound let it move into the sheet
+    # undetected), and the near-pair query restricted by them finds its pairs.
+    from penfree.core.contact.distance import indexed_distance
+
     V, F = _resting_sheets(rng, gap=0.05)
     V = np.concatenate([V, [[0.55, 0.55, 0.001]]])
     E = edges_from_faces(F)
     R = 0.01
     d = per_vertex_separation(V, E, F, R)
-    assert not (d[:-1] < R).any()
+    free = np.c_[np.full(len(F), len(V) - 1), F]
+    near_faces = F[indexed_distance(V, free, "vf") < R]  # brute force
+    assert near_faces.size and d[-1] < R
+    np.testing.assert_array_equal(np.flatnonzero(d[:-1] < R), np.unique(near_faces))
     want = _close(near_pairs(V, None, F, R), V, R)
     assert want and all(k == "vf" and i == len(V) - 1 for k, i, _ in want)
     assert _close(near_pairs(V, None, F, R, keep=d < R), V, R) == want
