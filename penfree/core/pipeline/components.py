@@ -135,8 +135,9 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
     -----
     Within a group the exact certificate of its map makes every path safe (SPEC
     section 5); between groups the conservative CCD does, in the deform-result reading
-    (pairs resting inside the thickness must stay disjoint); two groups with a pair
-    touching at the start share a map, under which it stays as it was. A violation the
+    (pairs resting inside the thickness must stay disjoint); a pair touching at the
+    start that moves is a violation, whose groups merge (the step gate then refuses
+    to move it at all: rounding alone can make it cross). A violation the
     CCD cannot attribute to two different groups (a near-miss flagged inside one
     certified group) merges everything into one global map, which is certified.
     """
@@ -175,10 +176,9 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
             A[list(key)], b[list(key)] = r.A, r.b
         if len(fitted) == 1:
             break
-        # A pair touching at the start is left as it was only under one nonsingular map
-        # (`movers`): across two groups' maps one primitive may be pushed through the other.
+        # a pair touching at the start that moves is a violation (`path._excuse`): its groups merge
         res = verify_step(x, x_def, edges=edges, faces=faces, thickness=thickness, max_pairs=_ALL_PAIRS,
-                          start_intersections=False, pre_existing=True, movers=group[labels])
+                          start_intersections=False, pre_existing=True)
         if res.ok:
             break
         before = group.copy()

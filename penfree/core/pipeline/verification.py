@@ -12,13 +12,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...constants import DEFAULT_MAX_PAIRS, UNIT_ROUNDOFF
+from ...constants import DEFAULT_MAX_PAIRS
 from ...errors import InputError
 from ..contact.obstacles import as_verify_obstacles
 from ..fit.certificate import certify
 from ..topology import as_topology, referenced_vertices, scene_edges
 from ..verify.affine import verify_affine_step
-from ..verify.gate import margin_rule, on_map
+from ..verify.gate import margin_rule
 from ..verify.path import check_thickness, verify_step
 from ..verify.result import VerifyResult
 from ..verify.reuse import result_lists
@@ -176,7 +176,6 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
     if "deformed" not in st:
         raise InputError(f"{res.origin} holds no steps/deformed to verify in {res.origin}:/steps/deformed")
     claimed = st.get("certificate_margin")
-    unit = 2.0**-24 if np.asarray(st["deformed"]).dtype.itemsize < 8 else UNIT_ROUNDOFF
     rep = VerifyReport(res.origin, "result", h, mode)
     nl = _result_lists(seq, mode)
     for k, s in enumerate(np.asarray(st["frame"]).tolist()):
@@ -186,8 +185,8 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         x_def = np.asarray(st["deformed"][k], dtype=np.float64)
         A, b = np.asarray(st["A"][k], np.float64), np.asarray(st["b"][k], np.float64)
         per_component = not np.isfinite(A).all()
-        rows = _component_rows(res, k, len(x)) if per_component else [(A, b, np.arange(len(x)))]
-        cert = all(certify(A_c, m) for A_c in np.unique(np.array([r[0] for r in rows]), axis=0))
+        maps = _component_maps(res, k) if per_component else [A]
+        cert = all(certify(A_c, m) for A_c in maps)
         r = None
         if mode != "ccd" and not seq.obstacles and not per_component:
             r = verify_affine_step(x, x_def, A, b, edges=seq.edges, faces=seq.faces, thickness=h, max_pairs=max_pairs,
@@ -196,9 +195,8 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
             r = VerifyResult(ok=False, start_ok=True, min_separation=0.0, method="certificate")
         if r is None:
             obs, names = _obstacles(seq, s, s)
-            movers = _movers(rows, x, x_def, unit)
             r = verify_step(x, x_def, edges=seq.edges, faces=seq.faces, thickness=h, obstacles=obs,
-                            obstacle_names=names, max_pairs=max_pairs, pre_existing=True, movers=movers)
+                            obstacle_names=names, max_pairs=max_pairs, pre_existing=True)
         is_claimed = claimed is not None and bool(np.isfinite(claimed[k]) and claimed[k] >= 0)
         rep.steps.append(StepReport(s, "deformed", r, cert, float(m), is_claimed, strict))
         if progress is not None:
@@ -223,56 +221,21 @@ def _result_lists(seq, mode):
     return result_lists(E, F)
 
 
-def _movers(rows, x, x_def, unit):
-    """(N,) int for `verify_step`: which of a step's maps moves each vertex (-1: none).
-
-    `rows`: ``[(A, b, vertices)]``, the step's map (``steps/A``, ``steps/b``) or its
-    components' (`_component_rows`). A vertex is moved by a map when the map is
-    nonsingular (``certify(A, 0)``) and ``x_def`` is its image up to rounding
-    (`gate.on_map`, `unit`: the stored dtype's): the file's claim is checked, never
-    trusted. Components with equal maps share an id.
-    """
-    out = np.full(len(x), -1, dtype=np.int64)
-    ids = {}
-    for A, b, idx in rows:
-        if not certify(A, 0.0):
-            continue
-        g = ids.setdefault((A.tobytes(), b.tobytes()), len(ids))
-        out[idx[on_map(x[idx], x_def[idx], A, b, unit)]] = g
-    return out
-
-
-def _component_rows(res, k, n):
-    """``[(A, b, vertices)]`` of per-component step k (``component_maps/A``, ``b``,
-    ``labels``), validated: a step whose ``steps/A`` is NaN needs them all."""
-    comp = res.groups.get("component_maps", {})
-    where = f"{res.origin}:/component_maps"
+def _component_maps(res, k):
+    """The distinct maps of per-component step k (``component_maps/A``, validated): a step
+    whose ``steps/A`` is NaN needs them."""
+    where = f"{res.origin}:/component_maps/A"
+    comp = res.groups.get("component_maps")
+    A = comp.get("A") if isinstance(comp, dict) else None
+    A = None if A is None or isinstance(A, dict) else np.asarray(A)
     S = len(res.steps["frame"])
-    arrays = {}
-    for name in ("A", "b", "labels"):
-        v = comp.get(name) if isinstance(comp, dict) else None
-        arrays[name] = None if v is None or isinstance(v, dict) else np.asarray(v)
-    A, b, labels = arrays["A"], arrays["b"], arrays["labels"]
     if A is None or A.dtype.kind not in "iuf" or A.ndim != 4 or A.shape[0] != S or A.shape[2:] != (3, 3):
         got = "nothing" if A is None else f"{A.shape} {A.dtype}"
         raise InputError(f"steps/A of step {k} is NaN (a per-component step): component_maps/A must be "
-                         f"({S}, C, 3, 3) numeric; got {got} in {where}/A")
-    C = A.shape[1]
-    if b is None or b.dtype.kind not in "iuf" or b.shape != (S, C, 3):
-        got = "nothing" if b is None else f"{b.shape} {b.dtype}"
-        raise InputError(f"component_maps/b must be ({S}, {C}, 3) numeric; got {got} in {where}/b")
-    if labels is None or labels.shape != (n,) or (n and labels.dtype.kind not in "iu") \
-            or (n and not ((labels >= 0) & (labels < C)).all()):
-        got = "nothing" if labels is None else f"{labels.shape} {labels.dtype}"
-        raise InputError(f"component_maps/labels must be ({n},) integers in [0, {C - 1}]; got {got} "
-                         f"in {where}/labels")
-    if not (np.isfinite(A[k]).all() and np.isfinite(b[k]).all()):
-        raise InputError(f"steps/A of step {k} is not finite and no finite per-component maps were found "
-                         f"in {where}/A")
-    order = np.argsort(labels, kind="stable")
-    starts = np.searchsorted(labels[order], np.arange(C + 1))
-    return [(A[k, c].astype(np.float64), b[k, c].astype(np.float64), order[starts[c]:starts[c + 1]])
-            for c in range(C)]
+                         f"({S}, C, 3, 3) numeric; got {got} in {where}")
+    if not np.isfinite(A[k]).all():
+        raise InputError(f"steps/A of step {k} is not finite and no finite per-component maps were found in {where}")
+    return list(np.unique(A[k].astype(np.float64), axis=0))
 
 
 def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEFAULT_MAX_PAIRS, progress=None,

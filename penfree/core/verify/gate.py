@@ -18,9 +18,9 @@ states" and "Obstacles"):
   query per step (`verify.near_pairs`, radius `NEAR_FIRST_FACTOR` h, redone larger,
   up to ``1.01 h / m``, only for a candidate that needs it); each candidate's path
   goes through the conservative CCD (`verify.check_pairs`) for them: a pair at least h apart must stay so, a pair
-  resting inside h must stay disjoint, a pair touching at the start is left as it
-  was. No global margin is derived from the smallest gap, so resting contact does
-  not freeze a step;
+  resting inside h must stay disjoint, a pair touching at the start must not move
+  (the rounded map can make it cross). No global margin is derived from the smallest
+  gap, so resting contact does not freeze a step;
 - obstacles held at the step's frame: half-spaces exactly, meshes by conservative CCD
   (`verify.verify_step` with ``self_pairs=False``).
 
@@ -86,46 +86,6 @@ def _max_dev_sq(x, x_def, A, b, k):
         if q > m or q != q:
             m = q
     return m
-
-
-def on_map(x, x_def, A, b, out_unit=UNIT_ROUNDOFF) -> np.ndarray:
-    """(N,) bool: the vertices whose `x_def` is the exact ``A x + b`` up to rounding.
-
-    The tolerance per coordinate: the float64 evaluation of ``A x + b`` in any order,
-    centred or not (`deviation_bound`'s 8 u, with room: 32 u of the sum of the terms'
-    magnitudes), plus twice `out_unit` of ``|x_def|`` (the rounding to the stored dtype:
-    ``2**-24`` for float32). A vertex outside it is not moved by this map as far as a
-    reader of the file can tell (a forged or damaged x_def).
-    """
-    x = np.ascontiguousarray(x, dtype=np.float64)
-    x_def = np.ascontiguousarray(x_def, dtype=np.float64)
-    out = np.empty(x.shape[0], dtype=np.bool_)
-    _on_map(x, x_def, np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64),
-            32.0 * UNIT_ROUNDOFF, 2.0 * float(out_unit), out)
-    return out
-
-
-@njit(cache=True)
-def _on_map(x, x_def, A, b, k, ko, out):
-    for v in range(x.shape[0]):
-        ok = True
-        for i in range(3):
-            y = A[i, 0] * x[v, 0] + A[i, 1] * x[v, 1] + A[i, 2] * x[v, 2] + b[i]
-            s = (abs(A[i, 0]) * abs(x[v, 0]) + abs(A[i, 1]) * abs(x[v, 1]) + abs(A[i, 2]) * abs(x[v, 2])
-                 + abs(b[i]) + abs(x_def[v, i]))
-            ok = ok and abs(x_def[v, i] - y) <= k * s + ko * abs(x_def[v, i])
-        out[v] = ok
-
-
-def _movers(maps, n):
-    """(N,) int: the index in `maps` of the map moving each vertex (-1: none), or None
-    when one map moves them all."""
-    if len(maps) == 1 and maps[0][2] is None:
-        return None
-    out = np.full(n, -1, dtype=np.int64)
-    for g, (_, _, rows) in enumerate(maps):
-        out[slice(None) if rows is None else rows] = g
-    return out
 
 
 def _start_distance(x, kind, idx):
@@ -233,7 +193,7 @@ class StepGate:
         # computed distances can lie above the true ones (`DISTANCE_ROUNDING_REL`)
         reach = reach * (1.0 + 1e-6) + DISTANCE_ROUNDING_REL * (float(np.abs(self.x).max()) if len(self.x) else 0.0)
         close = [(kind, ij[d0 < reach], idx[d0 < reach]) for kind, ij, idx, d0 in self.near(reach)]
-        return check_pairs(close, self.x, x_def64, self.thickness, _movers(maps, len(self.x)))
+        return check_pairs(close, self.x, x_def64, self.thickness)
 
     def _obstacles_ok(self, x_def64) -> bool:
         if not self.obstacles:

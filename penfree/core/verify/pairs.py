@@ -41,20 +41,18 @@ def near_pairs(x, edges, faces, radius, keep=None):
     return _self_candidates(body, body.x_t0, body.x_t0, _inflation(radius, body.x_t0), keep)
 
 
-def check_pairs(pairs, x_t0, x_t1, thickness, movers=None) -> bool:
+def check_pairs(pairs, x_t0, x_t1, thickness) -> bool:
     """True when none of `pairs` (from `near_pairs`) violates along x_t0 -> x_t1.
 
     Deform-result reading (`verify_step` with ``pre_existing=True``): a pair within
-    `thickness` at the start must stay disjoint, one touching at the start is left
-    as it was when one map moves it (`movers`, as for `verify_step`; None: one map
-    moves everything) or it does not move; every other pair must stay `thickness`
-    apart (conservative CCD).
+    `thickness` at the start must stay disjoint, one touching at the start must not
+    move; every other pair must stay `thickness` apart (conservative CCD).
     """
     X0 = np.ascontiguousarray(x_t0, dtype=np.float64)
     X1 = np.ascontiguousarray(x_t1, dtype=np.float64)
     col, pre = _Collector(), _Collector()
     for kind, ij, idx in pairs:
-        _narrow(col, kind, ij, idx, X0, X1, kind, thickness, pre=pre, movers=movers)
+        _narrow(col, kind, ij, idx, X0, X1, kind, thickness, pre=pre)
     return not col.kinds
 
 

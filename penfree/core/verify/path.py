@@ -101,7 +101,7 @@ class _Collector:
         return [(str(kinds[k]), int(ij[k, 0]), int(ij[k, 1]), float(toi[k])) for k in order], len(toi)
 
 
-def _narrow(col, kind, ij, idx, X0, X1, ccd_kind, thickness, start=None, pre=None, one_map=True, movers=None):
+def _narrow(col, kind, ij, idx, X0, X1, ccd_kind, thickness, start=None, pre=None):
     """CCD of pairs ij whose 4 vertex rows (into X0/X1) are idx (K, 4), in blocks.
 
     With `start`, the path hits are checked again at t = 0 (static): every pair
@@ -111,18 +111,14 @@ def _narrow(col, kind, ij, idx, X0, X1, ccd_kind, thickness, start=None, pre=Non
     With `pre` (a collector; the deform-result reading of SPEC section 6), a hit
     whose pair starts within `thickness` only has to stay disjoint (re-checked with
     thickness 0), and a pair that already touches or intersects at the start is
-    pre-existing: it goes to `pre` instead of `col`. Only where its two sides move by
-    one map (`one_map`, the scene's own pairs): a nonsingular path keeps such a pair as
-    it was. A scene primitive touching an obstacle may be pushed through it, so such a
-    pair is excused only when none of its vertices moves. `movers` ((N,) int, scene
-    pairs) says which map moves each vertex (-1: none known): then a touching pair is
-    excused only when one map moves all its vertices, or none of them moves.
+    pre-existing: it goes to `pre` instead of `col`, but only when none of its vertices
+    moves (`_excuse`).
     """
     for s in range(0, len(ij), _BLOCK):
         sl = slice(s, s + _BLOCK)
         status, toi, sep, _ = ccd_indexed(X0, X1, idx[sl], ccd_kind, thickness)
         if pre is not None:
-            _excuse(pre, kind, ij[sl], idx[sl], X0, X1, ccd_kind, thickness, status, sep, one_map, movers)
+            _excuse(pre, kind, ij[sl], idx[sl], X0, X1, ccd_kind, thickness, status, sep)
         col.add(kind, ij[sl], status, toi, sep)
         hit = np.flatnonzero(status != SEPARATED)
         if start is not None and len(hit):
@@ -130,7 +126,7 @@ def _narrow(col, kind, ij, idx, X0, X1, ccd_kind, thickness, start=None, pre=Non
             start.add(kind, ij[sl][hit], s0, t0, g0)
 
 
-def _excuse(pre, kind, ij, idx, X0, X1, ccd_kind, thickness, status, sep, one_map=True, movers=None):
+def _excuse(pre, kind, ij, idx, X0, X1, ccd_kind, thickness, status, sep):
     """Clear (in place) the hits of `status` that the start state explains.
 
     A pair within `thickness` at t = 0 (resting contact) passes when its path keeps
@@ -138,8 +134,12 @@ def _excuse(pre, kind, ij, idx, X0, X1, ccd_kind, thickness, status, sep, one_ma
     inside: the static CCD flags it (conservative, so it may flag a pair just
     outside) and its computed distance is below the thickness by more than its
     rounding; a pair at the thickness itself keeps the full thickness check. A pair
-    that touches or intersects at t = 0 is pre-existing: it is added to `pre` and
-    cleared.
+    that touches or intersects at t = 0 and does not move is pre-existing: it is added
+    to `pre` and cleared. A touching pair that moves stays a hit, whatever moves it:
+    an obstacle does not move with the map, two objects' maps push one through the
+    other, and even under one nonsingular map (which would keep it touching) the
+    written positions are that map rounded: a vertex lying on a face ended 4e-4 beneath
+    it (float32, 1e4 from the origin) with its triangle's other vertices above.
     """
     hit = np.flatnonzero(status != SEPARATED)
     if thickness > 0.0 and len(hit):
@@ -157,12 +157,7 @@ def _excuse(pre, kind, ij, idx, X0, X1, ccd_kind, thickness, status, sep, one_ma
         touch = np.concatenate([ccd_indexed(X0, X0, idx[hit[c:c + CCD_MAX_EXACT]], ccd_kind, 0.0)[0] != SEPARATED
                                 for c in range(0, len(hit), CCD_MAX_EXACT)])
         old = hit[touch]
-        if not one_map or movers is not None:  # a pair that does not move at all stays as it was
-            kept = (X0[idx[old]] == X1[idx[old]]).all(axis=(1, 2))
-            if one_map:  # and one whose vertices one nonsingular map moves
-                m = movers[idx[old]]
-                kept |= (m[:, 0] >= 0) & (m == m[:, :1]).all(axis=1)
-            old = old[kept]
+        old = old[(X0[idx[old]] == X1[idx[old]]).all(axis=(1, 2))]  # only a pair that does not move
         pre.add(kind, ij[old], status[old], np.zeros(len(old)), np.zeros(len(old)))
         status[old], sep[old] = SEPARATED, 0.0
 
@@ -201,11 +196,11 @@ def _self_candidates(body, X0, X1, inflation, keep=None):
     return out
 
 
-def _pairs_self(col, body, thickness, static, start=None, pre=None, movers=None):
+def _pairs_self(col, body, thickness, static, start=None, pre=None):
     X0 = body.x_t0
     X1 = body.x_t0 if static else body.x_t1
     for kind, ij, idx in _self_candidates(body, X0, X1, _inflation(thickness, X0, X1)):
-        _narrow(col, kind, ij, idx, X0, X1, kind, thickness, start, pre, movers=movers)
+        _narrow(col, kind, ij, idx, X0, X1, kind, thickness, start, pre)
 
 
 def _pairs_between(col, body, ob, name, thickness, start=None, pre=None):
@@ -216,16 +211,15 @@ def _pairs_between(col, body, ob, name, thickness, start=None, pre=None):
     if len(body.E) and len(ob.E):
         ee = edge_edge_candidates_between(X0, X1, body.E, ob.E + n, infl)
         idx = np.concatenate([body.E[ee[:, 0]], ob.E[ee[:, 1]] + n], axis=1)
-        _narrow(col, f"ee:{name}", ee, idx, X0, X1, "ee", thickness, start, pre, one_map=False)
+        _narrow(col, f"ee:{name}", ee, idx, X0, X1, "ee", thickness, start, pre)
     if len(body.V) and len(ob.F):
         vf = vertex_face_candidates_between(X0, X1, body.V, ob.F + n, infl)
         idx = np.concatenate([vf[:, :1], ob.F[vf[:, 1]] + n], axis=1)
-        _narrow(col, f"vf:{name}", vf, idx, X0, X1, "vf", thickness, start, pre, one_map=False)
+        _narrow(col, f"vf:{name}", vf, idx, X0, X1, "vf", thickness, start, pre)
     if len(ob.V) and len(body.F):
         fv = vertex_face_candidates_between(X0, X1, ob.V + n, body.F, infl)
         idx = np.concatenate([fv[:, :1], body.F[fv[:, 1]]], axis=1)
-        _narrow(col, f"fv:{name}", fv[:, ::-1] - np.array([0, n]), idx, X0, X1, "vf", thickness, start, pre,
-                one_map=False)
+        _narrow(col, f"fv:{name}", fv[:, ::-1] - np.array([0, n]), idx, X0, X1, "vf", thickness, start, pre)
 
 
 @njit(cache=True)
@@ -326,15 +320,6 @@ def _half_spaces(halves, scene, thickness, start, path, pre):
         path.sep = min(path.sep, sep)
 
 
-def _movers(movers, n):
-    if movers is None:
-        return None
-    m = np.asarray(movers)
-    if m.shape != (n,) or (n and m.dtype.kind not in "iu"):
-        raise InputError(f"movers must be ({n},) integer; got {m.shape} {m.dtype}")
-    return m.astype(np.int64, copy=False)
-
-
 def check_thickness(thickness, name="thickness"):
     """`thickness` (or another distance named `name`) as a float; InputError unless
     finite, >= 0 and at most `SCALE_MAX`, the range a file's attributes are held to
@@ -350,7 +335,7 @@ def check_thickness(thickness, name="thickness"):
 
 def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=None,
                 max_pairs=DEFAULT_MAX_PAIRS, obstacle_names=None, start_intersections=True,
-                pre_existing=False, self_pairs=True, movers=None) -> VerifyResult:
+                pre_existing=False, self_pairs=True) -> VerifyResult:
     """Prove (or refute) that the straight path x_t0 -> x_t1 keeps primitives apart.
 
     Parameters
@@ -387,12 +372,6 @@ def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=
         path adds no new intersecting or thickness-violating pair.
     self_pairs : bool
         False checks the scene against the obstacles only.
-    movers : (N,) int, optional
-        With `pre_existing`: the nonsingular affine map that moves each vertex, as an id
-        (-1: none known). A scene pair touching at the start is excused only when one
-        map moves all its vertices or none of them moves; elsewhere one primitive may be
-        pushed through the other. None: the caller vouches that one nonsingular affine
-        map moves the whole scene.
 
     Returns
     -------
@@ -428,8 +407,7 @@ def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=
     start, pre = (_Collector(), checked) if pre_existing else (checked, None)
     path = _Collector()
     if self_pairs:
-        _pairs_self(path, scene, thickness, static=False, start=None if pre_existing else start, pre=pre,
-                    movers=_movers(movers, len(scene.x_t0)))
+        _pairs_self(path, scene, thickness, static=False, start=None if pre_existing else start, pre=pre)
     for name, ob in obs:
         _pairs_between(path, scene, ob, name, thickness, start=None if pre_existing else start, pre=pre)
     _half_spaces(halves, scene, thickness, None if pre_existing else start, path, pre)

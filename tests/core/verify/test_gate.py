@@ -237,16 +237,17 @@ def test_ill_conditioned_pairs_are_not_taken_apart_by_their_computed_distance(ca
 
 
 @pytest.mark.parametrize("thickness", [0.0, 0.01])
-def test_gate_excuses_a_touching_pair_only_under_one_map(thickness):
-    """The apex of a triangle rests exactly on face 0 and two maps move the triangles
-    apart: the apex goes up through the face. A touching pair is left as it was only
-    when one map moves all its vertices (`StepGate.passes` was told the maps' vertices
-    and excused it anyway). One map moving both triangles passes."""
+def test_gate_refuses_to_move_a_touching_pair(thickness):
+    """The apex of a triangle rests exactly on face 0. Two maps moving the triangles
+    apart push the apex up through the face; one map moving both would keep them
+    touching, but its written positions are rounded and can cross (`test_deform.py::
+    test_touching_pairs_never_cross_by_rounding`). Both were excused as pre-existing;
+    a touching pair may now only stay where it is."""
     x = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.25, 0.25, 0], [0.5, 0.1, -1], [0.1, 0.5, -1.0]])
     F = np.array([[0, 1, 2], [3, 4, 5]])
     gate = StepGate(x, faces=F, thickness=thickness)
     lift = np.array([0, 0, 0.3])
     up = x + np.r_[np.zeros((3, 3)), np.tile(lift, (3, 1))]
-    two = [(np.eye(3), np.zeros(3), np.arange(3)), (np.eye(3), lift, np.arange(3, 6))]
-    assert not gate.passes(up, two)
-    assert gate.passes(x + lift, [(np.eye(3), lift, None)])
+    assert not gate.passes(up, [(np.eye(3), np.zeros(3), np.arange(3)), (np.eye(3), lift, np.arange(3, 6))])
+    assert not gate.passes(x + lift, [(np.eye(3), lift, None)])
+    assert gate.passes(x.copy(), [(np.eye(3), np.zeros(3), None)])
