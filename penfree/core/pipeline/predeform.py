@@ -124,14 +124,18 @@ def predeform(x_prev, x, *, edges=None, faces=None, contact_radius=0.0, thicknes
                    obstacles=list(obstacles or []), origin="predeform").validate()
     if seq.kind == "points":
         raise InputError("predeform needs edges or faces (the client's collision mesh)")
+    if not (seq.contact_radius > 0 or seq.thickness > 0):
+        raise InputError("predeform needs the simulator's contact offset: contact_radius > 0 (ipctk "
+                         "TrustRegion's dhat) or thickness > 0; got both 0")
     dhat = resolve_dhat(None, seq.contact_radius, seq.thickness)
     x64 = np.asarray(seq.positions[1], dtype=np.float64)
     x_pred = 2.0 * x64 - np.asarray(seq.positions[0], dtype=np.float64)
     d_start = None
     if bounds is not None:
-        b = np.asarray(bounds, dtype=np.float64)
-        if b.shape != (x64.shape[0],) or not np.isfinite(b).all() or (b < 0).any():
-            raise InputError(f"bounds must be ({x64.shape[0]},) finite and >= 0; got {b.shape}")
+        b = np.asarray(bounds)
+        if b.shape != (x64.shape[0],) or b.dtype.kind not in "iuf" or not np.isfinite(b).all() or (b < 0).any():
+            raise InputError(f"bounds must be ({x64.shape[0]},) real, finite and >= 0; got {b.shape} {b.dtype}")
+        b = b.astype(np.float64)
         d_start = b / K.DEFAULT_GAMMA + seq.thickness
     cm = ClientModel(truncation=truncation, dhat=dhat, edges=seq.edges, faces=seq.faces)
     strategy = Auto(seq, "auto", seq.thickness, 1, client_model=cm, d_start=d_start)

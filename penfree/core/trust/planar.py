@@ -167,12 +167,41 @@ def _edge_side(P, ip, i0, i1, nx, ny, nz):
     return (g11 * b0 - g01 * b1) / det, (g00 * b1 - g01 * b0) / det
 
 
+@njit(cache=True, inline="always")
+def _point_edge(P, ia, ib):
+    """``(t, d^2)``: the clamped parameter of P[0]'s nearest point on P[ia] P[ib], and its squared distance."""
+    t = min(max(_line_param(P, 0, ia, ib), 0.0), 1.0)
+    d2 = 0.0
+    for k in range(3):
+        e = P[0, k] - (P[ia, k] + t * (P[ib, k] - P[ia, k]))
+        d2 += e * e
+    return t, d2
+
+
+@njit(cache=True)
+def _degenerate_pt_coefficients(P, coef):
+    """A triangle without area (collinear or coincident vertices): its nearest edge.
+    (The type classification divides by the normal's length: ZeroDivisionError.)"""
+    t0, d0 = _point_edge(P, 1, 2)
+    t1, d1 = _point_edge(P, 2, 3)
+    t2, d2 = _point_edge(P, 3, 1)
+    if d0 <= d1 and d0 <= d2:
+        _set(coef, 1.0, -(1.0 - t0), -t0, 0.0)
+    elif d1 <= d2:
+        _set(coef, 1.0, 0.0, -(1.0 - t1), -t1)
+    else:
+        _set(coef, 1.0, -t2, 0.0, -(1.0 - t2))
+
+
 @njit(cache=True)
 def _pt_coefficients(P, coef):
     """IPC Toolkit's ``point_triangle_distance_type`` and the coefficients of the type."""
     ux, uy, uz = P[2, 0] - P[1, 0], P[2, 1] - P[1, 1], P[2, 2] - P[1, 2]
     vx, vy, vz = P[3, 0] - P[1, 0], P[3, 1] - P[1, 1], P[3, 2] - P[1, 2]
     nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    if nx * nx + ny * ny + nz * nz == 0.0:
+        _degenerate_pt_coefficients(P, coef)
+        return
     a0, c0 = _edge_side(P, 0, 1, 2, nx, ny, nz)
     if 0.0 < a0 < 1.0 and c0 >= 0.0:
         _set(coef, 1.0, -(1.0 - a0), -a0, 0.0)
@@ -403,8 +432,8 @@ def candidate_stencils(x, E, F, radius):
         parts.append(pair_rows(E, E, ee))
         kinds.append(np.full(ee.shape[0], KIND_EDGE_EDGE))
     if F.shape[0]:
-        used = np.unique(F)
-        vf = vertex_face_candidates(x, x, F, infl, vertices=used)
+        # every vertex, as ipctk pairs them: a segment's or a free vertex meets faces too
+        vf = vertex_face_candidates(x, x, F, infl, vertices=np.arange(x.shape[0], dtype=np.int64))
         parts.append(pair_rows(np.arange(x.shape[0], dtype=np.int64)[:, None], F, vf))
         kinds.append(np.full(vf.shape[0], KIND_VERTEX_FACE))
     if not parts:

@@ -176,6 +176,20 @@ class TestPredeform:
         assert penfree.certify(r.A)
         np.testing.assert_allclose(X @ r.A.T + r.b, r.x_def, atol=1e-12)
 
+    @pytest.mark.parametrize("bounds", [np.array(["a", "b", "c", "d"]), np.ones(4) * (1 + 1j), np.ones(4, bool),
+                                        np.full(4, np.nan), -np.ones(4), np.ones(3)],
+                             ids=["str", "complex", "bool", "nan", "negative", "short"])
+    def test_bad_bounds_are_input_errors(self, bounds):
+        """(Strings raised ValueError; complex bounds passed with a warning.)"""
+        with pytest.raises(InputError, match=r"bounds must be \(4,\) real, finite and >= 0"):
+            penfree.predeform(X - V, X, edges=EDGES, contact_radius=1.0, bounds=bounds)
+
+    def test_needs_a_contact_offset(self):
+        """The library call names its own arguments (it said "give --dhat", a CLI flag)."""
+        with pytest.raises(InputError, match="contact_radius > 0") as e:
+            penfree.predeform(X - V, X, edges=EDGES)
+        assert "--dhat" not in str(e.value)
+
     def test_static_does_nothing(self):
         r = penfree.predeform(X, X, edges=EDGES, contact_radius=1.0)
         assert r.model == "none" and r.query_radius == 2.0

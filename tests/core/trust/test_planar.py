@@ -157,3 +157,46 @@ def test_near_parallel_stacked_layers_regression():
     stencil_coefficients(x[[53, 69, 54, 70]], KIND_EDGE_EDGE, coef)
     dv = coef @ x[[53, 69, 54, 70]]
     assert abs(dv[2]) <= 1e-14 * np.linalg.norm(dv)  # was 1.3e-13
+
+
+@pytest.mark.parametrize("tri", [[[0.2, 0.2, 0.1]] * 2 + [[0.6, 0.3, 0.1]], [[0, 0, 0.1], [0.5, 0, 0.1], [1, 0, 0.1]],
+                                 [[0.3, 0.3, 0.1]] * 3], ids=["two-coincident", "collinear", "a-point"])
+def test_degenerate_triangle_stencils_are_their_nearest_edge(tri):
+    """A triangle without area: the vertex-face coefficients are those of the nearest
+    point on its edges (the type classification divided by the normal's length: a
+    ZeroDivisionError made `predeform(truncation="planar")` raise SystemError)."""
+    from penfree import predeform
+
+    p = np.array([0.4, -0.3, 0.5])
+    P = np.vstack([p, tri])
+    coef = np.zeros(4)
+    stencil_coefficients(P, KIND_VERTEX_FACE, coef)
+    # brute force: the nearest of many points on the three edges
+    s = np.linspace(0, 1, 100001)[:, None]
+    pts = np.concatenate([P[a] + s * (P[b] - P[a]) for a, b in ((1, 2), (2, 3), (3, 1))])
+    np.testing.assert_allclose(np.linalg.norm(coef @ P), np.linalg.norm(pts - p, axis=1).min(), rtol=0, atol=1e-6)
+    assert coef[0] == 1.0 and np.isclose(coef[1:].sum(), -1.0) and (coef[1:] <= 0).all()
+    x = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0.0], *tri])
+    r = predeform(x + [0.03, -0.02, 0.05], x, faces=[[0, 1, 2], [3, 4, 5]], thickness=0.01, contact_radius=0.05,
+                  truncation="planar")
+    assert np.isfinite(r.x_def).all()
+
+
+def test_a_segment_end_falling_onto_a_face_is_truncated_like_ipctk():
+    """A free segment's endpoint 0.01 above a triangle falls 0.05: ipctk stops it above
+    the face. The own planar client paired faces only with the faces' vertices, so a
+    segment's vertex met no face and went through (to z = -0.04)."""
+    from penfree.core.trust.client import make_client
+
+    x = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, 0.01], [0.2, 0.2, 0.5]])
+    F = np.array([[0, 1, 2]])
+    _, E, _ = scene_arrays(x, np.array([[3, 4]]), F)
+    dx = np.zeros_like(x)
+    dx[3:, 2] = -0.05
+    z = {}
+    for kind in ("own", "ipctk"):
+        c = make_client(kind, x, E, F, 0.01, 0.0, "planar")
+        c.set_radius(0.06)
+        c.update(x.copy())
+        z[kind] = x[3, 2] + c.filter(x, dx)[0][3, 2]
+    assert 0.0 < z["own"] < 0.01 and z["own"] == pytest.approx(z["ipctk"], abs=1e-12)
