@@ -349,3 +349,21 @@ def test_large_files_go_in_ranges_of_bounded_size(tmp_path, scheduler, monkeypat
             serial = tmp_path / f"serial{len(extra)}-{Path(p).name}"
             assert runner.invoke(main, ["deform", p, "-o", str(serial), *extra]).exit_code == 0
             assert_same_result(out / Path(p).name, serial)
+
+
+@pytest.mark.parametrize("chunks", [None, (1, 16, 3), (5, 16, 3), (12, 8, 3)], ids=str)
+def test_stored_frames_read_any_layout_frame_by_frame(tmp_path, chunks):
+    """A foreign input's layout (contiguous, chunked over several frames or vertex blocks)
+    streams the same frames; a non-finite one is named."""
+    from penfree.formats.frames import StoredFrames
+
+    x = np.random.default_rng(0).normal(size=(12, 16, 3)).astype(np.float32)
+    x[9, 3, 1] = np.nan
+    with h5py.File(tmp_path / "f.h5", "w") as f:
+        f.create_dataset("positions", data=x, chunks=chunks)
+    with h5py.File(tmp_path / "f.h5", "r") as f:
+        frames = StoredFrames(f["positions"], "f.h5")
+        for t in (*range(9), 10, 11, 0):
+            np.testing.assert_array_equal(frames.frame(t), x[t])
+        with pytest.raises(InputError, match=r"frame 9 holds NaN or Inf in f.h5:/positions"):
+            frames.frame(9)

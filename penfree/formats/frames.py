@@ -60,14 +60,30 @@ class Frames:
         raise NotImplementedError
 
 
+#: Frames a `StoredFrames` reads at once from a dataset chunked over several frames.
+BLOCK_FRAMES_MAX = 64
+
+
 class StoredFrames(Frames):
-    """The frames of an open HDF5 dataset ``(T, N, 3)`` (float, or integers read as float64)."""
+    """The frames of an open HDF5 dataset ``(T, N, 3)`` (float, or integers read as float64).
+
+    A dataset chunked over several frames (not penfree's one frame per chunk) is read a
+    chunk's frames at a time (at most `BLOCK_FRAMES_MAX`): frame by frame, every chunk
+    would be inflated once per frame it holds.
+    """
 
     def __init__(self, ds, where, name="positions"):
         if ds.ndim != 3 or ds.shape[2] != 3:
             raise FormatError(f"{name} must be (T, N, 3); got {ds.shape} in {where}:/{name}")
         super().__init__(ds.shape, float_dtype(ds, where, name), where, name)
         self._ds = ds
+        self._step = max(1, min(int(ds.chunks[0]), BLOCK_FRAMES_MAX)) if ds.chunks else 1
+        self._first, self._block = 0, None
 
     def _read(self, t):
-        return self._ds[t]
+        if self._step == 1:
+            return self._ds[t]
+        if self._block is None or not self._first <= t < self._first + len(self._block):
+            self._first = t - t % self._step
+            self._block = self._ds[self._first:self._first + self._step]
+        return self._block[t - self._first]
