@@ -15,7 +15,7 @@ from ..errors import FormatError, InputError
 from ..sequence import check_scale
 
 
-def float_dtype(ds, where, name) -> np.dtype:
+def _float_dtype(ds, where, name) -> np.dtype:
     """The native float dtype a stored positions dataset is read as (integers as float64)."""
     dt = np.dtype(ds.dtype)
     if dt.kind == "f" and dt.itemsize in (4, 8):
@@ -75,7 +75,7 @@ class StoredFrames(Frames):
     def __init__(self, ds, where, name="positions"):
         if ds.ndim != 3 or ds.shape[2] != 3:
             raise FormatError(f"{name} must be (T, N, 3); got {ds.shape} in {where}:/{name}")
-        super().__init__(ds.shape, float_dtype(ds, where, name), where, name)
+        super().__init__(ds.shape, _float_dtype(ds, where, name), where, name)
         self._ds = ds
         self._step = max(1, min(int(ds.chunks[0]), BLOCK_FRAMES_MAX)) if ds.chunks else 1
         self._first, self._block = 0, None

@@ -32,7 +32,7 @@ from ._json import json_default
 from ..sequence import OBSTACLE_FORMS, Obstacle, Sequence
 from ._registry import register
 from .atomic import atomic_file
-from .frames import Frames, float_dtype
+from .frames import Frames, StoredFrames
 
 H5_MAGIC = b"\x89HDF\r\n\x1a\n"
 #: Attributes with a meaning of their own; everything else is carried in ``Sequence.attrs``.
@@ -158,16 +158,13 @@ def read_positions(ds, where, name="positions", window=None) -> np.ndarray:
     `window` ``(start, stop)`` reads only those frames (`frame_window`); frame numbers in
     messages stay those of the file.
     """
-    if ds.ndim != 3 or ds.shape[2] != 3:
-        raise FormatError(f"{name} must be (T, N, 3); got {ds.shape} in {where}:/{name}")
+    frames = StoredFrames(ds, where, name)  # shape and dtype checked; each frame checked finite
     if ds.shape[0] < 2 and name == "positions":
         raise InputError(f"positions must hold at least 2 frames; got {ds.shape[0]} in {where}:/positions")
     start, stop = frame_window(window, ds.shape[0], where)
-    out = np.empty((stop - start,) + ds.shape[1:], dtype=float_dtype(ds, where, name))
+    out = np.empty((stop - start,) + frames.shape[1:], dtype=frames.dtype)
     for s in range(start, stop):
-        out[s - start] = ds[s]
-        if not np.isfinite(out[s - start]).all():
-            raise InputError(f"{name} must be finite; frame {s} holds NaN or Inf in {where}:/{name}")
+        out[s - start] = frames.frame(s)
     return out
 
 

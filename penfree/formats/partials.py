@@ -58,9 +58,9 @@ def merge_partials(parts, stream_deformed=False) -> tuple:
     memory at a time, for `result.write_result`) instead of one array of every step.
     """
     loaded = []
+    skip = _DEFORMED if stream_deformed else None
     for p in parts:
         with np.load(p, allow_pickle=False) as z:
-            skip = _DEFORMED if stream_deformed else None
             loaded.append(_unflatten({k: z[k] for k in z.files if k != skip}))
     steps = {k: np.concatenate([d["steps"][k] for d in loaded]) for k in loaded[0]["steps"]}
     if stream_deformed:

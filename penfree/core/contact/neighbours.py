@@ -65,7 +65,7 @@ from .broad_phase import _PRUNE_SLACK, _box_arrays, _gap_sq, _Plan, fold_pair_mi
 from .distance import edge_edge_sq, point_triangle_sq
 from ..parallel import parallel_kernel
 from ...errors import InputError
-from ..topology import as_positions, as_topology, scene_edges, separation_vertices
+from ..topology import as_positions, as_topology, scene_edges
 
 #: Skins tried by the cost model, relative to the query radius.
 SKIN_CANDIDATES_REL = (0.0625, 0.125, 0.25, 0.5, 1.0, 2.0)
@@ -376,18 +376,14 @@ class NeighbourList:
         if E.shape[0] > 1:
             lo, hi = _box_arrays(x, x, E, infl)
             self.P_ee = _Plan(lo, hi, E, lo, hi, E, True).pairs()
-        if F.shape[0]:
-            used = separation_vertices(n, F, E)
-            Q = np.ascontiguousarray(np.flatnonzero(used).astype(np.int64)[:, None])
-            loA, hiA = _box_arrays(x, x, Q, infl)
+        self._V = np.arange(n, dtype=np.int64)[:, None]  # vertex rows of the vf pairs: every vertex
+        if F.shape[0]:  # (`topology.separation_vertices`); a pair's row is its vertex
+            loA, hiA = _box_arrays(x, x, self._V, infl)
             loF, hiF = _box_arrays(x, x, F, infl)
-            vf = _Plan(loA, hiA, Q, loF, hiF, F, False).pairs()
-            vf[:, 0] = Q[vf[:, 0], 0]
-            self.P_vf = vf
+            self.P_vf = _Plan(loA, hiA, self._V, loF, hiF, F, False).pairs()
             if self.edge_face and E.shape[0]:
                 loE, hiE = _box_arrays(x, x, E, infl)
                 self.P_ef = _Plan(loE, hiE, E, loF, hiF, F, False).pairs()
-        self._V = np.arange(n, dtype=np.int64)[:, None]  # vertex rows of the vf pairs
         self.x_b = x.copy()
         self.x_ref = self.x_b
         self._since = 0

@@ -165,7 +165,7 @@ def complete_separations(x, E, F, radius, reach, d):
     if n_c > COMPLETE_MAX * x.shape[0]:
         return _separations(x, E, F, r)
     if n_c:
-        d[C] = _complete(x, E, F, r, C, used)[C]
+        d[C] = _complete(x, E, F, r, C)[C]
     return d
 
 
@@ -186,15 +186,15 @@ def _separations(x, E, F, radius, cells=("cube", "cube")):
     if E.shape[0]:
         fold_min_sq(x, E, E, inflation, partial, self_query=True, cells=cells[0])
     if F.shape[0]:
-        Q = _face_vertices(separation_vertices(n, F, E))
+        Q = _face_vertices(n)
         fold_min_sq(x, Q, F, inflation, partial, self_query=False, cells=cells[1])
     return capped_separations(partial, radius)
 
 
-def _face_vertices(used):
-    """(V, 1) int64: the vertices of mask `used` (`separation_vertices`), the rows of the
-    vertex-face folds."""
-    return np.ascontiguousarray(np.flatnonzero(used).astype(np.int64)[:, None])
+def _face_vertices(n):
+    """(n, 1) int64: the rows of the vertex-face folds, every vertex of a triangle scene
+    (`topology.separation_vertices`)."""
+    return np.arange(n, dtype=np.int64)[:, None]
 
 
 def separation_cells(x, E, F, radius) -> tuple:
@@ -204,15 +204,15 @@ def separation_cells(x, E, F, radius) -> tuple:
     ee = choose_cells(x, E, E, inflation, True) if E.shape[0] else "cube"
     vf = "cube"
     if F.shape[0]:
-        vf = choose_cells(x, _face_vertices(separation_vertices(x.shape[0], F, E)), F, inflation, False)
+        vf = choose_cells(x, _face_vertices(x.shape[0]), F, inflation, False)
     return ee, vf
 
 
-def _complete(x, E, F, radius, C, used):
+def _complete(x, E, F, radius, C):
     """Separations at `radius`, exact for the vertices of mask `C` (only): the folds of
     the pairs with a primitive that has a vertex in C (their edges against every edge,
-    their vertices against every face, every vertex against their faces; `used` marks
-    the vertices in a primitive). Each fold visits only the other side's boxes that
+    their vertices against every face, every vertex against their faces). Each fold
+    visits only the other side's boxes that
     meet the bounding box of C's side."""
     infl = 0.5 * radius
     partial = start_minima(x.shape[0], radius)
@@ -233,7 +233,7 @@ def _complete(x, E, F, radius, C, used):
             loB, hiB, EB = loE[k], hiE[k], E[k]
             fold(*near(loE, hiE, E, loB, hiB), loB, hiB, EB)
     if F.shape[0]:
-        Q = _face_vertices(used)
+        Q = _face_vertices(x.shape[0])
         loQ, hiQ = _box_arrays(x, x, Q, infl)
         loF, hiF = _box_arrays(x, x, F, infl)
         k = np.flatnonzero(C[Q[:, 0]])

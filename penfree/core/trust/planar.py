@@ -432,8 +432,8 @@ def candidate_stencils(x, E, F, radius):
         parts.append(pair_rows(E, E, ee))
         kinds.append(np.full(ee.shape[0], KIND_EDGE_EDGE))
     if F.shape[0]:
-        # every vertex, as ipctk pairs them: a segment's or a free vertex meets faces too
-        vf = vertex_face_candidates(x, x, F, infl, vertices=np.arange(x.shape[0], dtype=np.int64))
+        # every vertex (the default), as ipctk pairs them: a segment's or a free vertex meets faces too
+        vf = vertex_face_candidates(x, x, F, infl)
         parts.append(pair_rows(np.arange(x.shape[0], dtype=np.int64)[:, None], F, vf))
         kinds.append(np.full(vf.shape[0], KIND_VERTEX_FACE))
     if not parts:

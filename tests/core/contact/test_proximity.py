@@ -148,9 +148,9 @@ def test_reach_completes_only_the_vertices_at_it(rng, monkeypatch):
     seen = []
     real = proximity._complete
 
-    def spy(x, E_, F_, r, C, used):
+    def spy(x, E_, F_, r, C):
         seen.append(C.copy())
-        return real(x, E_, F_, r, C, used)
+        return real(x, E_, F_, r, C)
 
     monkeypatch.setattr(proximity, "_complete", spy)
     reach = np.sort(want[want < radius])[-5]  # four vertices (and the lone segment) above
