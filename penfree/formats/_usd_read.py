@@ -7,7 +7,7 @@ import numpy as np
 from ..errors import InputError
 from ..sequence import Obstacle
 from . import _usd_shapes as shapes
-from ._usd_stage import POINTS64
+from ._usd_stage import ANALYTIC_SIZES, POINTS64, skinning_query
 
 def _world(scan, prim, t, UsdGeom):
     """Local-to-world ``(3, 3)`` linear part (row-vector convention) and ``(3,)`` translation, in metres."""
@@ -20,7 +20,10 @@ def _is_identity(L, c) -> bool:
 
 
 def points(scan, prim, times, UsdGeom):
-    """World positions ``(T, n, 3)`` of a point-based prim at `times`."""
+    """World positions ``(T, n, 3)`` of a point-based prim at `times` (posed by its skeleton if skinned)."""
+    query = skinning_query(scan, prim)
+    if query is not None:
+        return _skinned_points(scan, prim, query, times, UsdGeom)
     attr = prim.GetAttribute("points")
     p64 = prim.GetAttribute(POINTS64)
     frames, n0 = [], None
@@ -52,16 +55,61 @@ def points(scan, prim, times, UsdGeom):
     return out
 
 
+def _skinned_points(scan, prim, query, times, UsdGeom):
+    """World positions ``(T, n, 3)`` of a skinned prim: UsdSkel's linear blend skinning at each time.
+
+    Skinning gives skeleton-space points; the skeleton's local-to-world transform (not the
+    prim's own, which skinning replaces) takes them to the world.
+    """
+    from pxr import UsdSkel, Vt
+
+    if query.HasBlendShapes():
+        raise InputError(f"skinned prim with blend shapes in {scan.where(prim)}; expected skinning without blend "
+                         f"shapes (bake it into time-sampled points first, e.g. with UsdSkel.BakeSkinning)")
+    skel = UsdSkel.BindingAPI(prim).GetInheritedSkeleton()
+    skel_query = scan.skel_cache.GetSkelQuery(skel)
+    if not skel or not skel_query:
+        raise InputError(f"skinned prim without a usable skeleton in {scan.where(prim)}; expected skel:skeleton to "
+                         f"name a Skeleton under the same SkelRoot")
+    attr = prim.GetAttribute("points")
+    frames = []
+    for t in times:
+        pts = attr.Get(t)
+        if pts is None:
+            raise InputError(f"prim has no points at time code {t:g} in {scan.where(prim)}; expected authored points")
+        xforms = skel_query.ComputeSkinningTransforms(t)
+        if query.IsRigidlyDeformed():
+            M = query.ComputeSkinnedTransform(xforms, t)
+            x = None if M is None else np.asarray(pts, dtype=np.float64) @ np.array(M)[:3, :3] + np.array(M)[3, :3]
+        else:
+            posed = Vt.Vec3fArray(pts)
+            x = np.asarray(posed, dtype=np.float64) if query.ComputeSkinnedPoints(xforms, posed, t) else None
+        if x is None or (frames and x.shape != frames[0].shape):
+            raise InputError(f"cannot pose skinned prim at time code {t:g} in {scan.where(prim)}; expected joint "
+                             f"influences matching its points and a skeleton animation")
+        L, c = _world(scan, skel.GetPrim(), t, UsdGeom)
+        frames.append(x @ L + c)
+    return np.stack(frames)
+
+
+def _fixed(scan, prim, *attrs):
+    """Refuse topology attributes whose time samples differ (remeshing is not supported)."""
+    for attr in attrs:
+        samples = attr.GetTimeSamples()
+        if len(samples) > 1 and any(attr.Get(s) != attr.Get(samples[0]) for s in samples[1:]):
+            raise InputError(f"{attr.GetName()} changes over time in {scan.where(prim)}; expected fixed topology")
+
+
 def mesh_topology(scan, prim, UsdGeom, t):
     mesh = UsdGeom.Mesh(prim)
     counts = mesh.GetFaceVertexCountsAttr()
     indices = mesh.GetFaceVertexIndicesAttr()
-    for attr in (counts, indices):
-        samples = attr.GetTimeSamples()
-        if len(samples) > 1 and any(attr.Get(s) != attr.Get(samples[0]) for s in samples[1:]):
-            raise InputError(f"{attr.GetName()} changes over time in {scan.where(prim)}; expected fixed topology")
+    _fixed(scan, prim, counts, indices)
     C = np.asarray(counts.Get(t) if counts.Get(t) is not None else [], dtype=np.int64)
     I = np.asarray(indices.Get(t) if indices.Get(t) is not None else [], dtype=np.int64)
+    if not len(C):
+        raise InputError(f"Mesh without faces (no faceVertexCounts) in {scan.where(prim)}; expected polygons "
+                         f"(a point cloud is not a mesh)")
     if C.sum() != len(I) or (C < 3).any():
         raise InputError(f"faceVertexCounts (sum {C.sum()}, min {C.min() if len(C) else '-'}) do not match "
                          f"faceVertexIndices ({len(I)}) in {scan.where(prim)}; expected polygons of >= 3 vertices")
@@ -92,6 +140,7 @@ def curve_topology(scan, prim, UsdGeom, t):
         raise InputError(f"{ctype} curves (basis {basis}) are not supported in {scan.where(prim)}; expected "
                          f"type = \"linear\": resample them to polylines first (Houdini: Resample + Convert to "
                          f"polygon; Blender: Curve > Convert to Mesh)")
+    _fixed(scan, prim, curves.GetCurveVertexCountsAttr())
     C = np.asarray(curves.GetCurveVertexCountsAttr().Get(t) or [], dtype=np.int64)
     if (C < 2).any():
         raise InputError(f"curveVertexCounts must be >= 2 for linear curves; got {int(C.min())} in {scan.where(prim)}")
@@ -115,7 +164,7 @@ def distance(scan, key, UsdGeom):
         for name in (f"penfree:{key}", key):
             attr = prim.GetAttribute(name)
             if attr.IsValid() and attr.HasValue():
-                found[str(prim.GetPath())] = (attr.Get(), f"{scan.where(prim)}.{name}")
+                found[str(prim.GetPath())] = (_constant(attr, f"{scan.where(prim)}.{name}"), f"{scan.where(prim)}.{name}")
                 break
     if found:
         values = {_number(v, where) for v, where in found.values()}
@@ -131,6 +180,18 @@ def distance(scan, key, UsdGeom):
     return 0.0
 
 
+def _constant(attr, where):
+    """An attribute's one value: its default, or its time samples when they all agree."""
+    samples = attr.GetTimeSamples()
+    if not samples:
+        return attr.Get()
+    values = {_number(attr.Get(t), where) for t in samples}
+    if len(values) > 1:
+        raise InputError(f"expected one value; got {len(values)} different time samples "
+                         f"({min(values):g} .. {max(values):g}) in {where}")
+    return values.pop()
+
+
 def _number(value, where) -> float:
     try:
         v = float(value)
@@ -139,6 +200,68 @@ def _number(value, where) -> float:
     if not np.isfinite(v) or v < 0:
         raise InputError(f"expected a finite number >= 0; got {value!r} in {where}")
     return v
+
+
+def _plane_normal(L, axis):
+    """Unit normal of the plane ``axis . x = 0`` mapped by ``x -> x L`` (row vectors), or None.
+
+    Normals map by ``L^-1`` (row-vector convention); the cofactor matrix ``det(L) L^-1``
+    gives the same direction, and stays defined when a scale of 0 along the plane's axis
+    makes L singular (the plane itself is still a plane; its free side is the one a
+    positive scale would give). None when the plane's own axes collapse.
+    """
+    k = "XYZ".index(axis.upper())
+    u, v = L[(k + 1) % 3], L[(k + 2) % 3]  # images of the in-plane axes, e_u x e_v = e_k
+    n = np.cross(u, v)
+    det = float(n @ L[k])
+    if det < 0:
+        n = -n
+    norm = float(np.linalg.norm(n))
+    if not norm > 0 or not np.isfinite(norm):
+        return None
+    return n / norm
+
+
+def _analytic_size(scan, prim, kind, t):
+    """The shape's size attributes at time code `t` (time samples included) and its axis."""
+    values = []
+    for name in ANALYTIC_SIZES[kind]:
+        attr = prim.GetAttribute(name)
+        raw = attr.Get(t) if attr.IsValid() else None
+        try:
+            value = float(raw)
+        except (TypeError, ValueError):
+            value = float("nan")
+        lowest = 0.0 if name in ("height", "radiusTop", "radiusBottom") else np.nextafter(0.0, 1.0)
+        if not (np.isfinite(value) and value >= lowest):
+            need = ">= 0" if lowest == 0.0 else "> 0"
+            raise InputError(f"{kind} {name} must be a finite number {need}; got {raw!r} at time code {t:g} in "
+                             f"{scan.where(prim)}")
+        values.append(value)
+    if kind in ("Capsule_1", "Cylinder_1", "Cone", "Cylinder") and max(values[:-1]) == 0.0:
+        raise InputError(f"{kind} radii are all 0 at time code {t:g} in {scan.where(prim)}; expected a solid")
+    if kind in ("Cylinder", "Cylinder_1", "Cone") and values[-1] == 0.0:
+        raise InputError(f"{kind} height must be > 0; got 0 at time code {t:g} in {scan.where(prim)}")
+    axis = prim.GetAttribute("axis")
+    return (*values, str(axis.Get(t)) if axis.IsValid() and axis.Get(t) else "Z")
+
+
+def _analytic_mesh(kind, *size):
+    """The containing mesh (V, F) of one analytic shape, in its local coordinates."""
+    axis = size[-1]
+    if kind == "Cube":
+        return shapes.cube(size[0])
+    if kind == "Sphere":
+        return shapes.sphere(size[0])
+    if kind == "Capsule":
+        return shapes.capsule(size[0], size[1], axis)
+    if kind == "Capsule_1":
+        return shapes.capsule(size[0], size[2], axis, radius_top=size[1])
+    if kind == "Cylinder":
+        return shapes.frustum(size[0], size[0], size[1], axis)
+    if kind == "Cone":
+        return shapes.frustum(size[0], 0.0, size[1], axis)
+    return shapes.frustum(size[0], size[1], size[2], axis)  # Cylinder_1
 
 
 def obstacle(scan, prim, names, UsdGeom) -> Obstacle:
@@ -154,21 +277,23 @@ def obstacle(scan, prim, names, UsdGeom) -> Obstacle:
             raise InputError(f"a Plane with a time-varying transform cannot be a half-space in {scan.where(prim)}; "
                              f"expected a static plane (give a moving floor as a Mesh with PhysicsCollisionAPI)")
         L, c = Ls[0]
-        axis = np.zeros(3)
-        axis["XYZ".index(UsdGeom.Plane(prim).GetAxisAttr().Get())] = 1.0
-        n = np.linalg.solve(L, axis)  # normals transform by the inverse transpose (row-vector convention)
-        n /= np.linalg.norm(n)
+        n = _plane_normal(L, str(UsdGeom.Plane(prim).GetAxisAttr().Get()))
+        if n is None:
+            raise InputError(f"a Plane whose transform flattens it to a line or a point in {scan.where(prim)}; "
+                             f"expected a scale that keeps both of the plane's own axes nonzero")
         return Obstacle(name, normal=n, offset=float(n @ c))
-    if kind in ("Cube", "Sphere", "Capsule"):
-        if kind == "Cube":
-            V, F = shapes.cube(float(UsdGeom.Cube(prim).GetSizeAttr().Get()))
-        elif kind == "Sphere":
-            V, F = shapes.sphere(float(UsdGeom.Sphere(prim).GetRadiusAttr().Get()))
-        else:
-            cap = UsdGeom.Capsule(prim)
-            V, F = shapes.capsule(float(cap.GetRadiusAttr().Get()), float(cap.GetHeightAttr().Get()),
-                                  str(cap.GetAxisAttr().Get()))
-        X = np.stack([V @ L + c for L, c in (_world(scan, prim, t, UsdGeom) for t in times)])
+    if kind in ANALYTIC_SIZES:
+        meshes, cache = [], {}
+        for t in times:
+            key = _analytic_size(scan, prim, kind, t)
+            if key not in cache:
+                cache[key] = _analytic_mesh(kind, *key)
+            meshes.append(cache[key])
+        F = meshes[0][1]
+        if any(not np.array_equal(f, F) for _, f in meshes[1:]):
+            raise InputError(f"the {kind}'s size changes over time so that its tessellation changes in "
+                             f"{scan.where(prim)}; expected a fixed shape (give it as a Mesh with PhysicsCollisionAPI)")
+        X = np.stack([V @ L + c for (V, _), (L, c) in zip(meshes, (_world(scan, prim, t, UsdGeom) for t in times))])
         return Obstacle(name, positions=X[0] if (X == X[0]).all() else X, faces=F)
     X = points(scan, prim, times, UsdGeom).astype(np.float64)
     if prim.IsA(UsdGeom.BasisCurves):

@@ -1,10 +1,12 @@
-"""Conservative triangle meshes of USD's analytic colliders (Cube, Sphere, Capsule).
+"""Conservative triangle meshes of USD's analytic colliders (Cube, Sphere, Capsule, Cylinder, Cone).
 
 A step that is safe against a mesh that *contains* the shape is safe against the
 shape itself, so every tessellation here encloses its shape: the cube exactly
 (8 vertices, 12 triangles), the sphere by an icosphere whose every face plane
 lies at least the radius from the centre, the capsule by the convex hull of two
-such icospheres. An affine transform maps containment to containment, so the
+such icospheres (of two radii for ``Capsule_1``), the cylinder, cone and frustum
+(``Cylinder_1``) by the hull of regular polygons that circumscribe their end
+circles. An affine transform maps containment to containment, so the
 world-space mesh still encloses the world-space shape (also under non-uniform
 scale). The price is a slightly larger collider: :data:`SPHERE_SUBDIVISIONS`
 = 2 puts the icosphere's vertices 1.8% of the radius outside the sphere.
@@ -26,6 +28,9 @@ SPHERE_SUBDIVISIONS = 2
 #: Relative padding on top of the exact clearance, against rounding of the vertex
 #: coordinates (float64 rounding is ~1e-16 relative; this is a million times more).
 CLEARANCE_PAD = 1e-9
+#: Sides of the regular polygons circumscribing a cylinder's or cone's end circles: their
+#: corners lie 0.5% of the radius outside the circle.
+RING_SIDES = 32
 
 
 def face_plane_distances(V: np.ndarray, F: np.ndarray, centre=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -90,21 +95,66 @@ def cube(size: float):
     return V, F
 
 
-def capsule(radius: float, height: float, axis: str = "Z", level: int = SPHERE_SUBDIVISIONS):
+def capsule(radius: float, height: float, axis: str = "Z", level: int = SPHERE_SUBDIVISIONS,
+            radius_top: float | None = None):
     """A convex mesh containing the capsule: segment of length `height` along `axis`, swept by `radius`.
 
-    The capsule is the convex hull of the balls at the segment's ends; the hull of
-    two containing icospheres contains it.
+    The capsule is the convex hull of the balls at the segment's ends (radius
+    `radius_top` at the +axis end when given, as ``Capsule_1``'s radiusTop); the
+    hull of two containing icospheres contains it.
     """
     from scipy.spatial import ConvexHull
 
-    Vs, _ = sphere(radius, level)
+    Vs, _ = sphere(1.0, level)
     k = "XYZ".index(axis.upper())
     shift = np.zeros(3)
     shift[k] = 0.5 * height
-    P = np.vstack([Vs + shift, Vs - shift])
+    top = radius if radius_top is None else radius_top
+    P = np.vstack([Vs * top + shift, Vs * radius - shift])
     hull = ConvexHull(P)
     used = np.unique(hull.simplices)
     remap = np.full(len(P), -1, dtype=np.int64)
     remap[used] = np.arange(len(used))
     return P[used], remap[hull.simplices].astype(np.int64)
+
+
+def frustum(radius_bottom: float, radius_top: float, height: float, axis: str = "Z", sides: int = RING_SIDES):
+    """A convex mesh containing a cylinder (equal radii), a cone (`radius_top` 0) or a frustum.
+
+    The shape is the convex hull of its end discs, at ``-height/2`` (`radius_bottom`)
+    and ``+height/2`` (`radius_top`) along `axis`. Each end becomes a regular polygon
+    of `sides` sides whose edges touch the circle (apothem = radius), so the hull of
+    the polygons contains the hull of the discs; an end of radius 0 is one vertex (the
+    apex). Outward-facing triangles, a fixed topology for given zero/non-zero radii.
+    """
+    k = "XYZ".index(axis.upper())
+    u, v = (k + 1) % 3, (k + 2) % 3  # e_u x e_v = e_k: the rings turn anticlockwise about +axis
+    theta = 2.0 * np.pi * np.arange(sides) / sides
+    corner = (1.0 + CLEARANCE_PAD) / np.cos(np.pi / sides)
+
+    def ring(radius, z):
+        if radius == 0.0:
+            P = np.zeros((1, 3))
+        else:
+            P = np.zeros((sides, 3))
+            P[:, u], P[:, v] = radius * corner * np.cos(theta), radius * corner * np.sin(theta)
+        P[:, k] = z
+        return P
+
+    bottom, top = ring(radius_bottom, -0.5 * height), ring(radius_top, 0.5 * height)
+    nb = len(bottom)
+    i = np.arange(sides)
+    j = (i + 1) % sides
+    F = []
+    if nb > 1 and len(top) > 1:
+        F += [np.c_[i, j, nb + j], np.c_[i, nb + j, nb + i]]
+    elif nb > 1:
+        F.append(np.c_[i, j, np.full(sides, nb)])
+    else:
+        F.append(np.c_[np.zeros(sides, np.int64), 1 + j, 1 + i])
+    fan = np.arange(1, sides - 1)
+    if nb > 1:
+        F.append(np.c_[np.zeros(sides - 2, np.int64), fan + 1, fan])
+    if len(top) > 1:
+        F.append(np.c_[np.full(sides - 2, nb), nb + fan, nb + fan + 1])
+    return np.vstack([bottom, top]), np.vstack(F).astype(np.int64)

@@ -21,7 +21,18 @@ INSTALL_HINT = "USD support needs the optional package usd-core: pip install 'pe
 POINTS64 = "penfree:points"
 #: Custom attribute marking a prim written by penfree ("recorded" or "deformed").
 ROLE = "penfree:role"
-ANALYTIC = ("Plane", "Cube", "Sphere", "Capsule")
+#: The analytic colliders read as containing meshes (``_usd_shapes``) and their size attributes;
+#: a ``Plane`` is a half-space.
+ANALYTIC_SIZES = {
+    "Cube": ("size",),
+    "Sphere": ("radius",),
+    "Capsule": ("radius", "height"),
+    "Capsule_1": ("radiusBottom", "radiusTop", "height"),
+    "Cylinder": ("radius", "height"),
+    "Cylinder_1": ("radiusBottom", "radiusTop", "height"),
+    "Cone": ("radius", "height"),
+}
+ANALYTIC = ("Plane", *ANALYTIC_SIZES)
 #: Relative tolerance for "the time codes are evenly spaced" (dt is then defined).
 SPACING_RTOL = 1e-9
 
@@ -66,6 +77,8 @@ class StageScan:
     time_codes_per_second: float = 24.0
     start_end: tuple | None = None
     up_axis: str = "Y"
+    skel_cache: object = None  # UsdSkel.Cache, populated per skeleton root on first use
+    skel_roots: set = field(default_factory=set)
 
     @property
     def dt(self):
@@ -125,10 +138,10 @@ def open_stage(path: str, prims=(), obstacles=()) -> StageScan:
         prim = stage.GetPrimAtPath(p)
         if not (prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdGeom.BasisCurves) or prim.GetTypeName() in ANALYTIC):
             raise InputError(f"--obstacle {p} in {path} is a {prim.GetTypeName() or 'typeless prim'}; "
-                             f"expected a Mesh, BasisCurves, Plane, Cube, Sphere or Capsule")
+                             f"expected a Mesh, BasisCurves or one of {', '.join(ANALYTIC)}")
 
     candidates = set(named_scene) | set(named_obstacles)
-    for prim in stage.Traverse():
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):  # instanced props' colliders too
         p = str(prim.GetPath())
         if not (prim.IsA(UsdGeom.Gprim) or p in candidates):
             continue
@@ -158,6 +171,9 @@ def _classify(scan, prim, kind, p, named_scene, named_obstacles, UsdGeom, UsdPhy
     if _in_point_instancer(prim, UsdGeom):
         # Prototypes are templates (Newton's viewer draws joints and contacts this way), not placed geometry.
         return "ignored", "prototype of a PointInstancer (instances are not read)"
+    collider = prim.HasAPI(UsdPhysics.CollisionAPI)
+    if not collider and UsdGeom.Imageable(prim).ComputePurpose() == UsdGeom.Tokens.guide:
+        return "ignored", "guide purpose (name it with --prim or --obstacle)"
     if kind in ANALYTIC:
         return "obstacle", "half-space" if kind == "Plane" else "analytic collider, tessellated conservatively"
     role = prim.GetAttribute(ROLE)
@@ -165,9 +181,18 @@ def _classify(scan, prim, kind, p, named_scene, named_obstacles, UsdGeom, UsdPhy
     if role == "obstacle":
         return "obstacle", "penfree obstacle"
     if not (prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdGeom.BasisCurves)):
+        if collider:
+            raise InputError(f"prim {p} in {scan.path} has PhysicsCollisionAPI but is a {kind or 'typeless prim'}, "
+                             f"which penfree cannot check a step against; expected a Mesh, BasisCurves or one of "
+                             f"{', '.join(ANALYTIC)} (convert it to a Mesh)")
         return "ignored", "unsupported prim type"
+    if skinning_query(scan, prim) is not None:
+        if collider:
+            return "obstacle", "skinned mesh with PhysicsCollisionAPI (posed by its skeleton)"
+        if named_scene:
+            return "ignored", "not named with --prim"
+        return "ignored", "skinned, posed by a skeleton (name it with --obstacle or --prim)"
     deforming = _points_change(scan, prim)
-    collider = prim.HasAPI(UsdPhysics.CollisionAPI)
     if prim.IsA(UsdGeom.Mesh) and collider and not deforming:
         return "obstacle", "mesh with PhysicsCollisionAPI"
     if named_scene:
@@ -182,6 +207,25 @@ def _classify(scan, prim, kind, p, named_scene, named_obstacles, UsdGeom, UsdPhy
         # Simulated cloth often carries the collision API too; its points deform, a collider's do not.
         return "scene", "deforming points (read as scene despite PhysicsCollisionAPI; --obstacle makes it a collider)"
     return "scene", "deforming points"
+
+
+def skinning_query(scan, prim):
+    """The ``UsdSkel`` skinning query of a prim bound to a skeleton with joint influences, else None."""
+    from pxr import Usd, UsdSkel
+
+    if not prim.HasAPI(UsdSkel.BindingAPI):
+        return None
+    root = UsdSkel.Root.Find(prim)
+    if not root:
+        return None
+    if scan.skel_cache is None:
+        scan.skel_cache = UsdSkel.Cache()
+    key = str(root.GetPrim().GetPath())
+    if key not in scan.skel_roots:
+        scan.skel_cache.Populate(root, Usd.TraverseInstanceProxies())
+        scan.skel_roots.add(key)
+    query = scan.skel_cache.GetSkinningQuery(prim)
+    return query if query and query.HasJointInfluences() else None
 
 
 def _in_point_instancer(prim, UsdGeom) -> bool:

@@ -18,12 +18,22 @@ Reading (``read_usd``):
   stage does not author it). Without a transform or scale the float32 points are
   kept bit for bit.
 - **Obstacles.** ``UsdGeomPlane`` becomes a half-space (free side along the
-  plane's axis); ``UsdGeomCube``, ``UsdGeomSphere`` and ``UsdGeomCapsule`` become
-  triangle meshes that *contain* the shape (see ``_usd_shapes``: a step safe
-  against the mesh is safe against the shape); meshes with ``PhysicsCollisionAPI``
-  whose points do not deform (simulated cloth often carries the API too: deforming
-  points make it scene) and prims named with ``obstacles=`` (``--obstacle PATH``)
-  become mesh obstacles. A time-varying world transform gives a kinematic obstacle.
+  plane's axis; infinite, as physics engines treat a ground plane, whatever its
+  width and length); ``UsdGeomCube``, ``Sphere``, ``Capsule``, ``Capsule_1``,
+  ``Cylinder``, ``Cylinder_1`` and ``Cone`` become triangle meshes that *contain*
+  the shape (see ``_usd_shapes``: a step safe against the mesh is safe against the
+  shape), their sizes read at each frame (time samples included); meshes with
+  ``PhysicsCollisionAPI`` whose points do not deform (simulated cloth often carries
+  the API too: deforming points make it scene), skinned meshes with it (posed by
+  their ``UsdSkel`` skeleton at each frame: linear blend skinning, in the skeleton's
+  world frame) and prims named with ``obstacles=`` (``--obstacle PATH``) become mesh
+  obstacles. A time-varying world transform gives a kinematic obstacle. Colliders
+  inside instanced references (Omniverse props) are read through their instance
+  proxies. A prim of another type with ``PhysicsCollisionAPI`` is refused.
+- **Ignored.** Guide-purpose prims without ``PhysicsCollisionAPI`` (helpers, hidden
+  duplicates), static and rigidly moving meshes, skinned meshes without the API and
+  ``PointInstancer`` prototypes; ``penfree info`` says why, and ``--prim`` /
+  ``--obstacle`` choose them explicitly.
 - **Distances.** ``thickness`` and ``contact_radius`` come from a custom
   attribute of a scene prim (``penfree:thickness`` or ``thickness``, likewise
   ``contact_radius``), else from the root layer's ``customLayerData`` (top level

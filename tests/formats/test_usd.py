@@ -45,7 +45,8 @@ def _mesh(stage, path, frames, counts, indices, codes=None):
     mesh.CreateFaceVertexIndicesAttr(Vt.IntArray([int(i) for i in np.ravel(indices)]))
     codes = range(len(frames)) if codes is None else codes
     for x, t in zip(frames, codes):
-        mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(np.asarray(x, dtype=np.float32)), float(t))
+        code = t if isinstance(t, Usd.TimeCode) else float(t)
+        mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(np.asarray(x, dtype=np.float32)), code)
     return mesh
 
 
@@ -638,3 +639,262 @@ def test_verify_prims_and_obstacles_choose_the_scene(tmp_path):
         assert alone.exit_code == 0 and "all steps safe" in alone.output, alone.output
     line = _error_line(_run("verify", path, "--prim", "/World/Nope"))
     assert "/World/Nope" in line and "through.usda" in line
+
+
+# --- real exports: how DCC tools and Omniverse author colliders --------------------------------
+
+def _surface_points(kind, rng, k=4000):
+    """Points on the surface of a unit-parameter shape in its local frame (axis Z), for the hull test."""
+    s = rng.normal(size=(k, 3))
+    s /= np.linalg.norm(s, axis=1)[:, None]
+    theta = rng.uniform(0, 2 * np.pi, k)
+    ring = np.c_[np.cos(theta), np.sin(theta), np.zeros(k)]
+    h = rng.uniform(-0.5, 0.5, k)
+    if kind == "Cylinder":  # radius 0.3, height 1.2: side and both cap rims
+        return np.vstack([0.3 * ring + np.c_[0 * h, 0 * h, 1.2 * h], 0.3 * ring + [0, 0, 0.6], 0.3 * ring - [0, 0, 0.6]])
+    if kind == "Cone":  # radius 0.3, height 1.2, apex at +0.6
+        f = rng.uniform(0, 1, k)[:, None]
+        return np.vstack([(1 - f) * (0.3 * ring - [0, 0, 0.6]) + f * np.array([0, 0, 0.6]), [[0, 0, 0.6]]])
+    if kind == "Cylinder_1":  # bottom 0.3, top 0.1, height 1.2
+        f = rng.uniform(0, 1, k)[:, None]
+        return (1 - f) * (0.3 * ring - [0, 0, 0.6]) + f * (0.1 * ring + [0, 0, 0.6])
+    return np.vstack([0.3 * s - [0, 0, 0.6], 0.1 * s + [0, 0, 0.6]])  # Capsule_1: bottom 0.3, top 0.1
+
+
+@pytest.mark.parametrize("kind", ["Cylinder", "Cone", "Cylinder_1", "Capsule_1"])
+def test_cylinder_cone_and_two_radius_colliders_contain_their_shape(tmp_path, kind):
+    """Omniverse and Houdini author these as colliders; they were ignored (verify passed a sheet through them)."""
+    from scipy.spatial import ConvexHull
+
+    path = tmp_path / "round.usda"
+    stage = _stage(path)
+    _falling_sheet(stage, [5.0, 4.9])
+    prim = stage.DefinePrim("/World/Shape", kind)
+    sizes = {"Cylinder": {"radius": 0.3}, "Cone": {"radius": 0.3},
+             "Cylinder_1": {"radiusBottom": 0.3, "radiusTop": 0.1}, "Capsule_1": {"radiusBottom": 0.3, "radiusTop": 0.1}}
+    for name, value in {**sizes[kind], "height": 1.2}.items():
+        prim.GetAttribute(name).Set(value)
+    prim.GetAttribute("axis").Set("Z")
+    xf = UsdGeom.Xformable(prim)
+    xf.AddTranslateOp().Set(Gf.Vec3d(1.0, -2.0, 0.5))
+    xf.AddRotateXYZOp().Set(Gf.Vec3f(30.0, 10.0, 70.0))
+    xf.AddScaleOp().Set(Gf.Vec3f(1.0, 2.0, 0.5))
+    stage.GetRootLayer().Save()
+    (ob,) = read_sequence(path).obstacles
+    assert ob.name == "Shape" and ob.positions.ndim == 2
+    M = np.array(xf.ComputeLocalToWorldTransform(0))
+    pts = _surface_points(kind, np.random.default_rng(3)) @ M[:3, :3] + M[3, :3]
+    hull = ConvexHull(ob.positions)
+    assert (pts @ hull.equations[:, :3].T + hull.equations[:, 3] <= 1e-12).all()
+    # Tight: the mesh is the shape's hull grown by at most the polygons' corner factor (0.5% of a radius).
+    assert hull.volume <= 1.03 * ConvexHull(pts).volume
+
+
+def test_collider_sizes_authored_only_as_time_samples(tmp_path):
+    """Houdini writes every attribute as time samples: the sizes are read at each frame, not the schema default."""
+    path = tmp_path / "sampled.usda"
+    stage = _stage(path)
+    _falling_sheet(stage, [3.0, 2.5, 2.0])
+    ball = UsdGeom.Sphere.Define(stage, "/World/Ball")
+    ball.GetRadiusAttr().Set(2.0, 0.0)  # one time sample: the value at every time
+    box = UsdGeom.Cube.Define(stage, "/World/Box")
+    box.AddTranslateOp().Set(Gf.Vec3d(10.0, 0.0, 0.0))
+    for t, size in enumerate([1.0, 2.0, 3.0]):
+        box.GetSizeAttr().Set(size, float(t))
+    stage.GetRootLayer().Save()
+    ball_ob, box_ob = read_sequence(path).obstacles
+    V, F = shapes.sphere(2.0)
+    assert np.array_equal(ball_ob.positions, V) and np.array_equal(ball_ob.faces, F)
+    assert box_ob.positions.shape == (3, 8, 3)
+    for k, size in enumerate([1.0, 2.0, 3.0]):
+        assert np.array_equal(np.sort(box_ob.positions[k], axis=0), np.sort(_cube_corners(size) + [10, 0, 0], axis=0))
+    r = _run("verify", path)  # the sheet (0 .. 0.3 wide) sinks from z = 3 into the ball of radius 2
+    assert r.exit_code == 1 and ":Ball" in r.output and "step     1 -> frame 2: VIOLATION" in r.output
+
+
+def _prop(path, collider=True):
+    prop = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageMetersPerUnit(prop, 1.0)
+    root = UsdGeom.Xform.Define(prop, "/Prop")
+    prop.SetDefaultPrim(root.GetPrim())
+    V, Q = _sheet(0.0, n=3, h=0.5)
+    board = _mesh(prop, "/Prop/Board", [V - [0.5, 0.5, 0.0]], [4] * len(Q), Q, codes=[Usd.TimeCode.Default()])
+    if collider:
+        UsdPhysics.CollisionAPI.Apply(board.GetPrim())
+    prop.GetRootLayer().Save()
+
+
+@pytest.mark.parametrize("instanceable", [False, True], ids=["referenced", "instanced"])
+def test_colliders_inside_instanced_references_are_read(tmp_path, instanceable):
+    """Omniverse props are instanceable: their colliders live under instance proxies and were dropped."""
+    _prop(tmp_path / "prop.usda")
+    path = tmp_path / "scene.usda"
+    stage = _stage(path)
+    _falling_sheet(stage, [1.0, -1.0])
+    board = stage.DefinePrim("/World/Board", "Xform")
+    board.GetReferences().AddReference(str(tmp_path / "prop.usda"))
+    board.SetInstanceable(instanceable)
+    stage.GetRootLayer().Save()
+    (ob,) = read_sequence(path).obstacles
+    assert ob.name == "Board" and ob.positions.shape == (9, 3)
+    r = _run("verify", path)
+    assert r.exit_code == 1 and ":Board" in r.output, r.output
+    info = _run("info", path)
+    assert "usd prim /World/Board/Board (Mesh): obstacle - mesh with PhysicsCollisionAPI" in info.output
+
+
+def _skinned_board(stage, path, lift, skel_offset=(0.0, 0.0, 0.0), collider=True):
+    """A 3 x 3 board skinned to a one-joint skeleton whose animation lifts it by `lift[t]` at time t."""
+    from pxr import UsdSkel
+
+    root = UsdSkel.Root.Define(stage, path)
+    root.AddTranslateOp().Set(Gf.Vec3d(*skel_offset))
+    skel = UsdSkel.Skeleton.Define(stage, f"{path}/Skel")
+    skel.CreateJointsAttr(["root"])
+    skel.CreateBindTransformsAttr(Vt.Matrix4dArray([Gf.Matrix4d(1.0)]))
+    skel.CreateRestTransformsAttr(Vt.Matrix4dArray([Gf.Matrix4d(1.0)]))
+    anim = UsdSkel.Animation.Define(stage, f"{path}/Skel/Anim")
+    anim.CreateJointsAttr(["root"])
+    anim.CreateRotationsAttr(Vt.QuatfArray([Gf.Quatf(1.0)]))
+    anim.CreateScalesAttr(Vt.Vec3hArray([Gf.Vec3h(1.0)]))
+    for t, z in enumerate(lift):
+        anim.CreateTranslationsAttr().Set(Vt.Vec3fArray([Gf.Vec3f(0.0, 0.0, z)]), float(t))
+    UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets([anim.GetPrim().GetPath()])
+    V, Q = _sheet(0.0, n=3, h=0.2)
+    V = V - [0.2, 0.2, 0.0]
+    board = _mesh(stage, f"{path}/Board", [V], [4] * len(Q), Q, codes=[Usd.TimeCode.Default()])
+    binding = UsdSkel.BindingAPI.Apply(board.GetPrim())
+    binding.CreateSkeletonRel().SetTargets([skel.GetPrim().GetPath()])
+    binding.CreateJointIndicesPrimvar(False, 1).Set(Vt.IntArray([0] * len(V)))
+    binding.CreateJointWeightsPrimvar(False, 1).Set(Vt.FloatArray([1.0] * len(V)))
+    binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
+    if collider:
+        UsdPhysics.CollisionAPI.Apply(board.GetPrim())
+    return V
+
+
+def test_skinned_collider_is_posed_by_its_skeleton(tmp_path):
+    """A character body bound to a skeleton (Blender armatures, Omniverse avatars) was read in its rest pose."""
+    path = tmp_path / "skin.usda"
+    stage = _stage(path)
+    _falling_sheet(stage, [0.55, 0.5, 0.45])
+    V = _skinned_board(stage, "/World/Body", lift=[0.0, 0.2, 1.0], skel_offset=(0.05, 0.0, 0.0))
+    _skinned_board(stage, "/World/Arm", lift=[0.0, 0.1, 0.2], skel_offset=(5.0, 0.0, 0.0), collider=False)
+    stage.GetRootLayer().Save()
+    (body,) = read_sequence(path).obstacles
+    assert body.name == "Board" and body.positions.shape == (3, 9, 3)
+    for k, z in enumerate([0.0, 0.2, 1.0]):
+        assert_allclose(body.positions[k], V + [0.05, 0.0, z], rtol=0, atol=1e-7)
+    r = _run("verify", path)  # the body rises through the hovering sheet in step 1 only
+    assert r.exit_code == 1 and "step     1 -> frame 2: VIOLATION" in r.output and ":Board" in r.output
+    assert "step     0 -> frame 1: OK" in r.output
+    info = _run("info", path)
+    assert "usd prim /World/Body/Board (Mesh): obstacle - skinned mesh with PhysicsCollisionAPI" in info.output
+    assert "usd prim /World/Arm/Board (Mesh): ignored - skinned, posed by a skeleton" in info.output
+    arm = read_sequence(path, obstacles=["/World/Arm/Board"]).obstacles[1]
+    assert_allclose(arm.positions[2], V + [5.0, 0.0, 0.2], rtol=0, atol=1e-7)
+
+
+def test_guide_prims_are_not_scene_or_obstacles_unless_colliders(tmp_path):
+    path = tmp_path / "roles.usda"
+    stage = _stage(path)
+    _falling_sheet(stage, [1.0, 0.9])
+    guide, _, _ = _falling_sheet(stage, [1.0, 0.9], path="/World/ClothGuide")  # a hidden duplicate of the cloth
+    guide.CreatePurposeAttr("guide")
+    helper = UsdGeom.Cube.Define(stage, "/World/BBoxHelper")  # a bounding-box helper around the cloth
+    helper.CreatePurposeAttr("guide")
+    collider = UsdGeom.Cube.Define(stage, "/World/HiddenCollider")  # colliders are often guides: kept
+    collider.CreatePurposeAttr("guide")
+    collider.AddTranslateOp().Set(Gf.Vec3d(0.0, 0.0, -5.0))
+    UsdPhysics.CollisionAPI.Apply(collider.GetPrim())
+    stage.GetRootLayer().Save()
+    seq = read_sequence(path)
+    assert seq.attrs["usd_prims"] == ["/World/Cloth"] and [ob.name for ob in seq.obstacles] == ["HiddenCollider"]
+    info = _run("info", path)
+    assert "usd prim /World/ClothGuide (Mesh): ignored - guide purpose" in info.output
+    assert "usd prim /World/BBoxHelper (Cube): ignored - guide purpose" in info.output
+    named = read_sequence(path, obstacles=["/World/BBoxHelper"])
+    assert [ob.name for ob in named.obstacles] == ["BBoxHelper", "HiddenCollider"]
+
+
+def test_collider_of_an_unsupported_type_is_refused(tmp_path):
+    path = tmp_path / "points.usda"
+    stage = _stage(path)
+    _falling_sheet(stage, [1.0, 0.9])
+    pts = UsdGeom.Points.Define(stage, "/World/Grains")
+    pts.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.zeros((4, 3), dtype=np.float32)))
+    UsdPhysics.CollisionAPI.Apply(pts.GetPrim())
+    stage.GetRootLayer().Save()
+    line = _error_line(_run("verify", path))
+    assert str(path) in line and "/World/Grains" in line and "PhysicsCollisionAPI" in line and "Points" in line
+
+
+@pytest.mark.parametrize("scale,normal", [
+    ((1.0, 1.0, 0.0), (0.0, 0.0, 1.0)),  # flattened along its own axis: still the plane z = 0.5
+    ((2.0, 3.0, -1.0), (0.0, 0.0, -1.0)),  # mirrored: the free side follows the geometry
+    ((1.0, 2.0, 4.0), (0.0, 0.0, 1.0)),
+], ids=["zero-axis-scale", "mirrored", "scaled"])
+def test_plane_normal_under_singular_and_mirrored_scales(tmp_path, scale, normal):
+    path = tmp_path / "plane.usda"
+    stage = _stage(path)
+    _falling_sheet(stage, [1.0, 0.9])
+    plane = UsdGeom.Plane.Define(stage, "/World/Floor")
+    plane.CreateAxisAttr("Z")
+    plane.AddTranslateOp().Set(Gf.Vec3d(0.0, 0.0, 0.5))
+    plane.AddScaleOp().Set(Gf.Vec3f(*scale))
+    stage.GetRootLayer().Save()
+    (ob,) = read_usd(str(path)).obstacles
+    assert np.array_equal(ob.normal, normal) and ob.offset == 0.5 * normal[2]
+    if all(scale):  # where the transform is invertible, the inverse-transpose rule is the oracle
+        L = np.array(UsdGeom.Xformable(plane).ComputeLocalToWorldTransform(0))[:3, :3]
+        n = np.linalg.solve(L, [0.0, 0.0, 1.0])
+        assert_allclose(ob.normal, n / np.linalg.norm(n), rtol=0, atol=1e-15)
+
+
+def test_plane_flattened_within_itself_is_refused(tmp_path):
+    path = tmp_path / "plane.usda"
+    stage = _stage(path)
+    _falling_sheet(stage, [1.0, 0.9])
+    plane = UsdGeom.Plane.Define(stage, "/World/Floor")
+    plane.CreateAxisAttr("Z")
+    plane.AddScaleOp().Set(Gf.Vec3f(0.0, 1.0, 1.0))
+    stage.GetRootLayer().Save()
+    line = _error_line(_run("info", path))
+    assert str(path) in line and "/World/Floor" in line and "flattens it" in line
+
+
+def test_time_varying_topology_and_distances(tmp_path):
+    path = tmp_path / "hair.usda"
+    stage = _stage(path)
+    x = np.random.default_rng(2).random((6, 3))
+    hair = _curves(stage, "/World/Hair", [x, x + 0.01, x + 0.02], [3, 3])
+    for t, counts in enumerate([[3, 3], [2, 4], [6]]):
+        hair.GetCurveVertexCountsAttr().Set(Vt.IntArray(counts), float(t))
+    stage.GetRootLayer().Save()
+    line = _error_line(_run("info", path))
+    assert str(path) in line and "/World/Hair" in line and "curveVertexCounts changes over time" in line
+
+    path = tmp_path / "thick.usda"
+    stage = _stage(path)
+    cloth, _, _ = _falling_sheet(stage, [1.0, 0.9])
+    attr = cloth.GetPrim().CreateAttribute("penfree:thickness", Sdf.ValueTypeNames.Double)
+    attr.Set(0.01, 0.0)
+    attr.Set(0.01, 1.0)
+    stage.GetRootLayer().Save()
+    assert read_sequence(path).thickness == 0.01
+    attr.Set(0.02, 1.0)
+    stage.GetRootLayer().Save()
+    line = _error_line(_run("info", path))
+    assert "penfree:thickness" in line and "0.01 .. 0.02" in line
+
+
+def test_mesh_without_faces_is_refused(tmp_path):
+    path = tmp_path / "cloud.usda"
+    stage = _stage(path)
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Cloth")
+    V, _ = _sheet(0.0)
+    for t in range(2):
+        mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy((V + [0, 0, t]).astype(np.float32)), float(t))
+    stage.GetRootLayer().Save()
+    line = _error_line(_run("verify", path))
+    assert str(path) in line and "/World/Cloth" in line and "without faces" in line
