@@ -6,8 +6,14 @@ numbered file whose siblings share its name pattern (``frame_0001.ply`` ->
 every ``frame_NNNN.ply``). Frames are sorted by number, not by name. Files are
 read through meshio, OBJ through :mod:`penfree.formats.obj` (meshio drops
 ``l`` polylines). Triangles become faces, lines/polylines edges, quads and
-polygons a fan of triangles. Every frame must have the vertex count and the
-topology of the first.
+polygons a fan of triangles; any other cell type, and cells that meshio
+itself skips (VTK_POLY_LINE), are refused, never dropped. Every frame must
+have the vertex count and the topology of the first.
+
+Frame numbers may be negative (Houdini's ``cloth.-002.ply``: a ``-`` right
+after a non-alphanumeric character is a sign, ``cloth-0002.ply`` is frame 2)
+and must follow one constant stride (every frame or every k-th): the steps
+are taken to be equal in time, so a missing frame is refused.
 
 Mesh files carry no thickness, dt, weights or obstacles: they are not written
 and read back as absent. Two files with one frame number are refused. Writing
@@ -35,12 +41,16 @@ from ..errors import FormatError, InputError, OutputExistsError
 from ..sequence import Sequence
 from ._registry import FORMATS, register
 from .atomic import PRINTF_DIRECTIVE, TMP_PREFIX, TMP_SUFFIX, atomic_dir, on_commit, printf_to_glob, write_phase
-from .obj import read_obj, write_obj
+from ._mesh_file import read_mesh
+from .obj import write_obj
 
 MESH_EXTENSIONS = (".ply", ".obj", ".vtk", ".vtu", ".off", ".stl")
 DEFAULT_PATTERN = "frame_%04d.ply"
+#: A frame number: digits, with a minus sign only right after a non-alphanumeric
+#: character (``cloth.-002.ply`` is -2, ``cloth-0002.ply`` is 2).
+NUMBER = r"((?:(?<![A-Za-z0-9])-)?\d+)"
 #: The last run of digits in a file name is its frame number.
-NUMBERED = re.compile(r"^(.*?)(\d+)(\D*)$")
+NUMBERED = re.compile(r"^(.*?)" + NUMBER + r"(\D*)$")
 #: Output names count as numbered only with the digits right before the extension.
 NUMBERED_FILE = re.compile(r"^(.*?)(\d+)(\.[^.]+)$")
 GLOB_CHARS = re.compile(r"[*?\[]")
@@ -53,7 +63,7 @@ def _pattern_regex(basename: str) -> re.Pattern:
     # split() with 2 groups yields [text, zero, width, text, ...]
     pieces = [re.escape(parts[0])]
     for k in range(1, len(parts), 3):
-        pieces.append(r"(\d+)")
+        pieces.append(r"(-?\d+)")  # printf writes -2 as "-002" for %04d
         pieces.append(re.escape(parts[k + 2]))
     return re.compile("^" + "".join(pieces) + "$")
 
@@ -89,7 +99,7 @@ def _from_siblings(path: str) -> list:
     if not m:
         raise InputError(f"{path} has no frame number in its name; expected e.g. frame_0001.ply, a pattern or a directory")
     prefix, suffix = m.group(1), m.group(3)
-    rx = re.compile("^" + re.escape(prefix) + r"(\d+)" + re.escape(suffix) + "$")
+    rx = re.compile("^" + re.escape(prefix) + NUMBER + re.escape(suffix) + "$")
     return sorted((os.path.join(d, n) for n in _listdir(d or ".", path) if rx.match(n)), key=_number_key)
 
 
@@ -126,6 +136,7 @@ def frame_files(path: str) -> list:
     if len(files) < 2:
         raise InputError(f"{path} names {len(files)} mesh file(s); a sequence needs at least 2 frames")
     _check_unique_numbers(files, path)
+    _check_stride(files, path)
     return files
 
 
@@ -143,47 +154,28 @@ def _check_unique_numbers(files: list, path: str) -> None:
         seen[n] = p
 
 
+def _check_stride(files: list, path: str) -> None:
+    """Frame numbers must follow one stride: a step of the prediction is one frame-to-frame time step."""
+    matches = [NUMBERED.match(os.path.basename(p)) for p in files]
+    if len(files) < 3 or not all(matches):  # a glob may add unnumbered files: their order is the caller's
+        return
+    numbers = [int(m.group(2)) for m in matches]
+    steps = np.diff(numbers)
+    values, counts = np.unique(steps, return_counts=True)
+    stride = int(values[np.argmax(counts)])  # the most common step; ties go to the smallest
+    if (steps == stride).all():
+        return
+    k = int(np.flatnonzero(steps != stride)[0])
+    a, b, pa, pb = numbers[k], numbers[k + 1], files[k], files[k + 1]
+    d = path if os.path.isdir(path) else (os.path.dirname(pa) or ".")
+    gap = (f"frame {a + stride} is missing from" if (b - a) % stride == 0 and b > a + stride
+           else f"frames {a} and {b} are {b - a} apart in")
+    raise InputError(f"{gap} {d}: {os.path.basename(pa)} is followed by {os.path.basename(pb)} while the other "
+                     f"frames are {stride} apart; expected one constant stride of frame numbers (penfree assumes "
+                     f"equal time steps between frames)")
+
+
 # --- reading -----------------------------------------------------------------
-
-def _fan(cells: np.ndarray) -> np.ndarray:
-    k = cells.shape[1]
-    return np.concatenate([cells[:, [0, j, j + 1]] for j in range(1, k - 1)]) if len(cells) else cells[:, :3]
-
-
-def read_mesh(path: str):
-    """One frame: ``points (N, 3)``, ``edges (E, 2)`` or None, ``faces (F, 3)`` or None."""
-    if path.lower().endswith(".obj"):
-        return read_obj(path)
-    import meshio
-
-    sink = io.StringIO()
-    try:
-        # meshio prints to the console and may call sys.exit on unreadable files.
-        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
-            mesh = meshio.read(path)
-    except (Exception, SystemExit) as exc:
-        msg = " ".join((str(exc) if not isinstance(exc, SystemExit) else sink.getvalue()).split())[:120]
-        raise FormatError(f"cannot read mesh file {path} ({type(exc).__name__}: {msg})") from None
-    pts = np.asarray(mesh.points)
-    if pts.ndim != 2 or pts.shape[1] not in (2, 3):
-        raise FormatError(f"points must be (N, 3); got {pts.shape} in {path}")
-    if pts.shape[1] == 2:
-        pts = np.column_stack([pts, np.zeros(len(pts), pts.dtype)])
-    edges, faces = [], []
-    for block in mesh.cells:
-        data = np.asarray(block.data, dtype=np.int64)
-        if block.type == "triangle":
-            faces.append(data)
-        elif block.type in ("quad", "polygon") or block.type.startswith("polygon"):
-            faces.append(_fan(data))
-        elif block.type == "line":
-            edges.append(data)
-        elif block.type != "vertex":
-            raise FormatError(f"cells of type {block.type} in {path}; expected triangles, quads, polygons or lines")
-    e = np.concatenate(edges) if edges else None
-    f = np.concatenate(faces) if faces else None
-    return pts, e, f
-
 
 def _same(a, b) -> bool:
     if a is None or b is None:
@@ -296,7 +288,7 @@ def _series_regex(base: str) -> re.Pattern:
     """Names of the series of `base` (``frame_%04d.ply``) whatever their padding:
     ``frame_3.ply``, ``frame_00003.ply``."""
     parts = PRINTF_DIRECTIVE.split(base)
-    return re.compile("^" + re.escape(parts[0]) + r"(\d+)" + re.escape(parts[3]) + "$")
+    return re.compile("^" + re.escape(parts[0]) + r"(-?\d+)" + re.escape(parts[3]) + "$")
 
 
 def check_frames_replaceable(pattern: str, n_frames: int) -> None:

@@ -27,6 +27,9 @@ def _index(token: str, n_seen: int, path: str, lineno: int) -> int:
         raise FormatError(f"bad vertex index {token!r} on line {lineno} of {path}; expected an integer") from None
     if i == 0:
         raise FormatError(f"vertex index 0 on line {lineno} of {path}; OBJ indices start at 1")
+    if i < -n_seen:
+        above = f"-1 .. -{n_seen} (relative to the {n_seen} vertices above it)" if n_seen else "a 'v' line above it"
+        raise FormatError(f"vertex index {i} on line {lineno} of {path} points before the first vertex; expected {above}")
     return i - 1 if i > 0 else n_seen + i
 
 
@@ -76,7 +79,23 @@ def read_obj(path: str):
     pts = np.array(points, dtype=np.float64).astype(dtype)
     e = np.array(edges, dtype=np.int64).reshape(-1, 2) if edges else None
     f = np.array(faces, dtype=np.int64).reshape(-1, 3) if faces else None
+    # A positive index may name a vertex defined further down, so the range is checked once all are read.
+    if max((a.max() for a in (e, f) if a is not None), default=-1) >= len(pts):
+        _raise_out_of_range(path, len(pts))
     return pts, e, f
+
+
+def _raise_out_of_range(path: str, n: int):
+    """Name the first ``l``/``f`` index beyond the last vertex, as written (1-based) and with its line."""
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for lineno, line in enumerate(fh, 1):
+            parts = line.split()
+            if parts and parts[0] in ("l", "f"):
+                for t in parts[1:]:
+                    if int(t.split("/", 1)[0]) > n:
+                        raise FormatError(f"vertex index {t.split('/', 1)[0]} on line {lineno} of {path} is out of "
+                                          f"range; expected 1 .. {n} (the file has {n} vertices)")
+    raise FormatError(f"a vertex index in {path} is out of range; expected 1 .. {n}")  # not reached
 
 
 def write_obj(path: str, points, edges=None, faces=None) -> None:

@@ -10,8 +10,11 @@ further Temporal collections named ``obstacle:<name>``; half-space obstacles
 (no grid to draw), thickness, contact radius, dt, source and other attributes sit in an ``<Information Name="penfree">`` JSON
 element that viewers ignore.
 
-The reader takes these files and meshio TimeSeriesWriter files (whose moving
-geometry, if any, is the ``positions`` point data).
+The reader takes these files, hand-written ones (XDMF 2 or 3 spelling; frames
+in ``<Time>`` order when every grid has one, Topology ``BaseOffset`` honoured,
+XY geometry padded with z = 0) and meshio TimeSeriesWriter files, whose moving
+geometry must be the ``positions`` point data: a file without it (FEniCS'
+``u`` / ``displacement``) is refused rather than read as a motionless scene.
 
 >>> write_sequence("cloth.xdmf", seq)   # then File > Open cloth.xdmf in ParaView  # doctest: +SKIP
 """
@@ -32,6 +35,7 @@ from ._registry import register
 from .atomic import atomic_file
 from ._json import json_default
 from .hdf5 import open_h5
+from ._mesh_file import topology_from_cells
 
 MAIN_GRID = "penfree"
 OBSTACLE_PREFIX = "obstacle:"
@@ -205,29 +209,79 @@ def _grid_topology(grid, items, path):
         raise FormatError(f"grid {grid.get('Name')} has no Topology in {path}")
     kind = top.get("TopologyType", top.get("Type", ""))
     key = (kind, ET.tostring(top))
-    if kind.lower() == "triangle":
-        return key, None, items.read(top.find("DataItem"), "Topology").reshape(-1, 3)
-    if kind.lower() == "polyline" and top.get("NodesPerElement", "2") == "2":
-        return key, items.read(top.find("DataItem"), "Topology").reshape(-1, 2), None
     if kind.lower() == "polyvertex":
         return key, None, None
-    raise FormatError(f"Topology {kind} in {path}; expected Triangle, Polyline (2 nodes) or Polyvertex")
+    if kind.lower() == "triangle":
+        width = 3
+    elif kind.lower() == "polyline" and top.get("NodesPerElement", "2") == "2":
+        width = 2
+    else:
+        raise FormatError(f"Topology {kind} in {path}; expected Triangle, Polyline (2 nodes) or Polyvertex")
+    try:
+        base = int(top.get("BaseOffset", "0"))
+    except ValueError:
+        raise FormatError(f"Topology BaseOffset={top.get('BaseOffset')!r} in {path}; expected an integer") from None
+    # BaseOffset is the index of the first vertex (1 for 1-based connectivity).
+    cells = items.read(top.find("DataItem"), "Topology").reshape(-1, width) - base
+    return key, (cells if width == 2 else None), (cells if width == 3 else None)
 
 
-def _read_collection(coll, items, path, what):
-    grids = [g for g in coll.findall("Grid")]
+def _grid_name(grid, s):
+    return f"grid {grid.get('Name')!r}" if grid.get("Name") else f"grid {s}"
+
+
+def _time_order(grids, items, path, what):
+    """The grids sorted by their ``<Time>``: every grid must have one, else document order is kept."""
+    times = []
+    for s, grid in enumerate(grids):
+        el = grid.find("Time")
+        if el is None or (el.get("Value") is None and el.find("DataItem") is None):
+            return grids
+        if el.get("Value") is not None:
+            shown = el.get("Value")
+            try:
+                t = float(shown)
+            except ValueError:
+                t = np.nan
+        else:  # <Time><DataItem>0.5</DataItem></Time>
+            a = items.read(el.find("DataItem"), f"Time of {_grid_name(grid, s)} of {what}")
+            shown, t = str(a.tolist()), float(a.item()) if a.size == 1 else np.nan
+        if not np.isfinite(t):
+            raise InputError(f"Time {shown!r} of {_grid_name(grid, s)} of {what} in {path} is not a number; "
+                             f"expected one finite time value per grid")
+        times.append(t)
+    order = sorted(range(len(grids)), key=lambda k: times[k])
+    for k0, k1 in zip(order, order[1:]):
+        if times[k0] == times[k1]:
+            raise InputError(f"{_grid_name(grids[k0], k0)} and {_grid_name(grids[k1], k1)} of {what} have the same "
+                             f"Time {times[k0]!r} in {path}; expected one grid per time value")
+    return [grids[k] for k in order]
+
+
+def _read_collection(coll, items, path, what, moving=False):
+    """Frames ``(T, N, 3)`` (``(N, 3)`` if every grid shares one HDF5 geometry and not `moving`), edges, faces, grids."""
+    grids = _time_order(coll.findall("Grid"), items, path, what)
     if not grids:
         raise FormatError(f"{what} holds no grids in {path}")
     frames, topo = [], None
     for s, grid in enumerate(grids):
         geo = grid.find("Geometry")
-        if geo is None or geo.get("GeometryType", geo.get("Type", "XYZ")) not in ("XYZ", "XY"):
-            raise FormatError(f"grid {s} of {what} needs an XYZ Geometry in {path}")
-        pts = items.read(geo.find("DataItem"), f"Geometry of grid {s} of {what}")
-        pts = pts.reshape(-1, 3) if geo.get("GeometryType", "XYZ") != "XY" else np.column_stack(
-            [pts.reshape(-1, 2), np.zeros(pts.size // 2)])
+        # XDMF 2 says GeometryType, XDMF 3 Type: one value decides both the check and the reshape.
+        gtype = None if geo is None else geo.get("GeometryType", geo.get("Type", "XYZ"))
+        if gtype not in ("XYZ", "XY"):
+            raise FormatError(f"{_grid_name(grid, s)} of {what} has Geometry {gtype or 'none'} in {path}; "
+                              f"expected an XYZ or XY Geometry")
+        width = 3 if gtype == "XYZ" else 2
+        pts = items.read(geo.find("DataItem"), f"Geometry of {_grid_name(grid, s)} of {what}")
+        if pts.size % width or (pts.ndim > 1 and pts.shape[-1] != width):
+            raise InputError(f"Geometry {gtype} of {_grid_name(grid, s)} of {what} holds an array of shape "
+                             f"{pts.shape} in {path}; expected (N, {width})")
+        pts = pts.reshape(-1, width)
+        if width == 2:
+            pts = np.column_stack([pts, np.zeros(len(pts), pts.dtype)])
         if frames and pts.shape != frames[0].shape:
-            raise InputError(f"grid {s} of {what} has {len(pts)} vertices, grid 0 has {len(frames[0])} in {path}")
+            raise InputError(f"{_grid_name(grid, s)} of {what} has {len(pts)} vertices, {_grid_name(grids[0], 0)} "
+                             f"has {len(frames[0])} in {path}")
         frames.append(pts)
         key = ET.tostring(grid.find("Topology")) if grid.find("Topology") is not None else None
         if topo is None:
@@ -235,9 +289,16 @@ def _read_collection(coll, items, path, what):
         elif key != topo[0][1]:
             _, e, f = _grid_topology(grid, items, path)
             if not (_eq(e, topo[1]) and _eq(f, topo[2])):
-                raise InputError(f"grid {s} of {what} has a different topology than grid 0 in {path}")
+                raise InputError(f"{_grid_name(grid, s)} of {what} has a different topology than "
+                                 f"{_grid_name(grids[0], 0)} in {path}")
     refs = {(g.find("Geometry/DataItem").text or "").strip() for g in grids}
     if len(grids) > 1 and len(refs) == 1 and grids[0].find("Geometry/DataItem").get("Format") == "HDF":
+        if moving:
+            fields = sorted({a.get("Name", "?") for g in grids for a in g.findall("Attribute")})
+            carried = f" (its grids carry the attributes {', '.join(fields)})" if fields else ""
+            raise InputError(f"the {len(grids)} grids of {what} in {path} share one Geometry dataset {refs.pop()}, so "
+                             f"the scene does not move{carried}; expected one Geometry per frame (penfree reads "
+                             f"motion from the geometry)")
         return frames[0], topo[1], topo[2], grids  # a static obstacle: one dataset for every frame
     return np.stack(frames), topo[1], topo[2], grids
 
@@ -279,7 +340,7 @@ def _read_xdmf(path: str) -> Sequence:
         raise FormatError(f"the penfree Information element must hold a JSON object with an object 'attrs' in {path}")
     with ExitStack() as stack:
         items = _Items(path, stack)
-        positions, edges, faces, grids = _read_collection(main, items, path, "the main collection")
+        positions, edges, faces, grids = _read_collection(main, items, path, "the main collection", moving=True)
         seq = Sequence(positions=positions, edges=edges, faces=faces, origin=path,
                        thickness=info.get("thickness") or 0.0, contact_radius=info.get("contact_radius") or 0.0,
                        dt=info.get("dt"), source=info.get("source"),
@@ -312,17 +373,25 @@ def _read_meshio_series(path: str) -> Sequence:
     try:
         with meshio.xdmf.TimeSeriesReader(path) as reader:
             points, cells = reader.read_points_cells()
-            frames = []
+            frames, fields = [], {}
             for k in range(reader.num_steps):
                 _, point_data, _ = reader.read_data(k)
-                frames.append(point_data.get("positions", points))
+                frames.append(point_data.get("positions"))
+                fields.update(dict.fromkeys(point_data))
     except (Exception, SystemExit) as exc:
         raise FormatError(f"cannot read XDMF time series {path} ({type(exc).__name__}: {exc})") from None
-    faces = [c.data for c in cells if c.type == "triangle"]
-    edges = [c.data for c in cells if c.type == "line"]
-    return Sequence(positions=np.stack([np.asarray(p)[:, :3] for p in frames]),
-                    faces=np.concatenate(faces) if faces else None,
-                    edges=np.concatenate(edges) if edges else None, origin=path)
+    # The mesh written once is the reference configuration; the motion must be spelled out per step.
+    if frames and all(p is None for p in frames):
+        raise InputError(f"no step of the XDMF time series {path} has a point field named 'positions' (point fields: "
+                         f"{', '.join(fields) or 'none'}); penfree reads the motion from 'positions' "
+                         f"(positions = points + displacement) and does not guess it from other fields")
+    missing = [k for k, p in enumerate(frames) if p is None]
+    if missing:
+        raise InputError(f"step {missing[0]} of the XDMF time series {path} has no point field 'positions' while "
+                         f"other steps have one; expected 'positions' in every step")
+    edges, faces = topology_from_cells(cells, len(points), path)
+    return Sequence(positions=np.stack([np.asarray(p)[:, :3] for p in frames]) if frames else np.empty((0, 0, 3)),
+                    faces=faces, edges=edges, origin=path)
 
 
 register("xdmf", (".xdmf", ".xmf"), read_xdmf, write_xdmf, outputs=_outputs, input_files=input_files)

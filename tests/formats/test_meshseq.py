@@ -111,7 +111,8 @@ def test_obj_polylines_quads_and_relative_indices(tmp_path):
     ("v 0 0 0\nl 1 x\n", "bad vertex index 'x' on line 2"),
     ("v 0 0 0\nl 0 1\n", "vertex index 0 on line 2"),
     ("# nothing\n", "holds no vertices"),
-], ids=["short-vertex", "text-index", "zero-index", "empty"])
+    ("v 0 0 0\nv 1 0 0\nl -3 -1\n", r"vertex index -3 on line 3 .* points before the first vertex; expected -1 \.\. -2"),
+], ids=["short-vertex", "text-index", "zero-index", "empty", "relative-before-first"])
 def test_obj_refusals(tmp_path, text, expect):
     p = tmp_path / "f_1.obj"
     p.write_text(text)
@@ -217,3 +218,123 @@ def test_duplicate_frame_numbers_are_refused(tmp_path, rng, name):
         read_sequence(path)
     msg = str(err.value)
     assert "frame number 3" in msg and "frame_0003.ply" in msg and "frame_3.ply" in msg, msg
+
+
+# --- files written by others -------------------------------------------------
+
+POLY_LINE_VTU = """<?xml version="1.0"?>
+<VTKFile type="UnstructuredGrid" version="0.1" byte_order="LittleEndian">
+ <UnstructuredGrid><Piece NumberOfPoints="5" NumberOfCells="1">
+  <Points><DataArray type="Float64" NumberOfComponents="3" format="ascii">{points}</DataArray></Points>
+  <Cells>
+   <DataArray type="Int64" Name="connectivity" format="ascii">0 1 2 3 4</DataArray>
+   <DataArray type="Int64" Name="offsets" format="ascii">5</DataArray>
+   <DataArray type="UInt8" Name="types" format="ascii">4</DataArray>
+  </Cells></Piece></UnstructuredGrid></VTKFile>
+"""
+
+
+def test_cells_meshio_skips_are_refused(tmp_path, capsys):
+    # A rod exported by ParaView as one VTK_POLY_LINE: meshio warns and drops it, leaving bare points.
+    for k in range(2):
+        points = " ".join(f"{i} 0 {k}" for i in range(5))
+        (tmp_path / f"rod_{k}.vtu").write_text(POLY_LINE_VTU.format(points=points))
+    with pytest.raises(FormatError) as err:
+        read_sequence(str(tmp_path), format="meshseq")
+    assert (f"cells of type VTK_POLY_LINE (4) in {tmp_path / 'rod_0.vtu'} cannot be read (meshio skips them); "
+            f"expected triangle, quad, polygon, line, line3 or vertex cells") in str(err.value)
+    assert capsys.readouterr().err == ""
+
+
+def test_volume_cells_are_refused(tmp_path):
+    import meshio
+
+    for k in range(2):
+        meshio.write(tmp_path / f"v_{k}.vtu", meshio.Mesh(np.eye(4)[:, :3] + k, [("tetra", np.array([[0, 1, 2, 3]]))]))
+    with pytest.raises(FormatError, match=r"cells of type tetra \(4 nodes\) in .*v_0\.vtu; penfree reads triangle"):
+        read_sequence(str(tmp_path / "v_%d.vtu"))
+
+
+PLY_POLYGONS = """ply
+format ascii 1.0
+element vertex 9
+property double x
+property double y
+property double z
+element face 4
+property list uchar int vertex_indices
+end_header
+{points}
+4 0 1 4 3
+4 1 2 5 4
+5 3 4 5 8 6
+3 6 8 7
+"""
+
+
+def test_quads_and_polygons_are_fanned_polygon_by_polygon(tmp_path):
+    frames = [np.array([[i, j, k] for j in range(3) for i in range(3)], float) for k in range(2)]
+    for k, x in enumerate(frames):
+        (tmp_path / f"sheet_{k}.ply").write_text(PLY_POLYGONS.format(points="\n".join(" ".join(map(str, p)) for p in x)))
+    seq = read_sequence(str(tmp_path / "sheet_0.ply"))
+    np.testing.assert_array_equal(seq.positions, frames)
+    # meshio groups cells by type (quads, pentagon, triangle); each polygon's fan stays together, winding kept
+    assert seq.faces.tolist() == [[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4],
+                                  [3, 4, 5], [3, 5, 8], [3, 8, 6], [6, 8, 7]]
+
+
+@pytest.mark.parametrize("how", ["one-file", "directory", "glob", "pattern"])
+def test_negative_frame_numbers_houdini(tmp_path, rng, how):
+    # Houdini's $F4 writes frame -2 as cloth.-002.ply
+    seq = _seq(rng, T=4)
+    for s, number in enumerate((-2, -1, 0, 1)):
+        meshseq._write_mesh(str(tmp_path / f"cloth.{number:04d}.ply"), seq.positions[s], seq.edges, seq.faces)
+    path = {"one-file": "cloth.0000.ply", "directory": "", "glob": "cloth.*.ply", "pattern": "cloth.%04d.ply"}[how]
+    back = read_sequence(str(tmp_path / path), format="meshseq")
+    np.testing.assert_array_equal(back.positions, seq.positions)
+
+
+def test_hyphen_before_the_number_is_a_separator(tmp_path, rng):
+    seq = _seq(rng, T=3)
+    for s in range(3):
+        meshseq._write_mesh(str(tmp_path / f"rod-{s + 1:04d}.obj"), seq.positions[s], seq.edges, seq.faces)
+    assert frame_files(str(tmp_path)) == [str(tmp_path / f"rod-{s:04d}.obj") for s in (1, 2, 3)]
+
+
+@pytest.mark.parametrize("numbers,expect", [
+    ((12, 13, 15), "frame 14 is missing from {d}: f_13.obj is followed by f_15.obj while the other frames are 1 apart"),
+    ((0, 2, 4, 8, 10), "frame 6 is missing from {d}: f_4.obj is followed by f_8.obj while the other frames are 2 apart"),
+    ((0, 2, 4, 5, 7), "frames 4 and 5 are 1 apart in {d}: f_4.obj is followed by f_5.obj while the other frames are 2 "
+                      "apart"),
+], ids=["gap", "gap-in-every-2nd", "off-stride"])
+def test_gaps_in_frame_numbers_are_refused(tmp_path, rng, numbers, expect):
+    seq = _seq(rng, T=len(numbers))
+    for s, n in enumerate(numbers):
+        meshseq._write_mesh(str(tmp_path / f"f_{n}.obj"), seq.positions[s], seq.edges, seq.faces)
+    for path in (str(tmp_path), str(tmp_path / "f_13.obj") if 13 in numbers else str(tmp_path / "f_*.obj")):
+        with pytest.raises(InputError) as err:
+            read_sequence(path, format="meshseq")
+        assert expect.format(d=tmp_path) in str(err.value)
+        assert "expected one constant stride of frame numbers" in str(err.value)
+
+
+def test_every_kth_frame_is_a_sequence(tmp_path, rng):
+    seq = _seq(rng, T=4)
+    for s in range(4):
+        meshseq._write_mesh(str(tmp_path / f"f_{10 + 5 * s}.obj"), seq.positions[s], seq.edges, seq.faces)
+    np.testing.assert_array_equal(read_sequence(str(tmp_path), format="meshseq").positions, seq.positions)
+
+
+def test_obj_index_out_of_range_names_the_file_and_the_index_as_written(tmp_path):
+    for k in range(2):
+        (tmp_path / f"a_{k}.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n")
+    with pytest.raises(FormatError) as err:
+        read_sequence(str(tmp_path), format="meshseq")
+    assert (f"vertex index 7 on line 4 of {tmp_path / 'a_0.obj'} is out of range; expected 1 .. 3 "
+            f"(the file has 3 vertices)") in str(err.value)
+
+
+def test_obj_forward_references_are_allowed(tmp_path):
+    p = tmp_path / "f_1.obj"
+    p.write_text("f 1 2 3\nv 0 0 0\nv 1 0 0\nv 0 1 0\n")  # faces before their vertices
+    assert read_obj(str(p))[2].tolist() == [[0, 1, 2]]

@@ -164,3 +164,134 @@ def test_input_files_of_a_meshio_time_series(tmp_path, rng, monkeypatch):
         for s in range(2):
             w.write_data(float(s), point_data={"positions": rng.random((3, 3))})
     assert str(tmp_path / "sim.h5") in {os.path.realpath(f) for f in input_files("sim.xdmf")}
+
+
+# --- files written by others -------------------------------------------------
+
+# A 3 x 3 grid of vertices (row-major) and its four quads, counter-clockwise seen from +z.
+GRID = np.array([[i, j, 0.0] for j in range(3) for i in range(3)])
+QUADS = np.array([[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 7, 6], [4, 5, 8, 7]])
+TRIS = np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]])
+
+
+def _meshio_series(path, cells, point_data):
+    import meshio
+
+    with meshio.xdmf.TimeSeriesWriter(str(path)) as w:
+        w.write_points_cells(GRID, cells)
+        for s, data in enumerate(point_data):
+            w.write_data(float(s), point_data=data)
+
+
+@pytest.mark.parametrize("cells,faces,edges", [
+    ([("quad", QUADS[:2])], [[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]], None),
+    ([("triangle", np.array([[0, 4, 8]])), ("quad", QUADS[2:]), ("vertex", np.array([[5]]))],
+     [[0, 4, 8], [3, 4, 7], [3, 7, 6], [4, 5, 8], [4, 8, 7]], None),
+    ([("line3", np.array([[0, 2, 1], [6, 8, 7]]))], None, [[0, 1], [1, 2], [6, 7], [7, 8]]),  # end0, end1, mid
+], ids=["quads", "triangles-quads-vertex", "line3"])
+def test_meshio_series_quads_and_line3_are_read_not_dropped(tmp_path, monkeypatch, cells, faces, edges):
+    # each quad's two fan triangles stay together and keep its winding
+    monkeypatch.chdir(tmp_path)
+    pos = [GRID + [0, 0, 0.1 * s] for s in range(3)]
+    _meshio_series("ts.xdmf", cells, [{"positions": p} for p in pos])
+    seq = read_sequence("ts.xdmf")
+    np.testing.assert_array_equal(seq.positions, pos)
+    assert (None if seq.faces is None else seq.faces.tolist()) == faces
+    assert (None if seq.edges is None else seq.edges.tolist()) == edges
+
+
+def test_meshio_series_volume_cells_are_refused(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    _meshio_series("vol.xdmf", [("tetra", np.array([[0, 1, 3, 4]]))], [{"positions": GRID}] * 2)
+    with pytest.raises(InputError) as err:
+        read_sequence("vol.xdmf")
+    msg = str(err.value)
+    assert "vol.xdmf" in msg and "tetra" in msg and "penfree reads triangle, quad, polygon, line" in msg, msg
+
+
+@pytest.mark.parametrize("fields,expect", [
+    ([{"displacement": GRID * 0}] * 3, "no step of the XDMF time series {p} has a point field named 'positions' "
+                                       "(point fields: displacement)"),
+    ([{"positions": GRID}, {"u": GRID}, {"positions": GRID}], "step 1 of the XDMF time series {p} has no point field "
+                                                              "'positions'"),
+], ids=["fenics-displacement", "one-step-without"])
+def test_meshio_series_without_positions_is_refused(tmp_path, monkeypatch, fields, expect):
+    # The mesh written once is the reference state: reading it for every step would be a motionless scene.
+    monkeypatch.chdir(tmp_path)
+    _meshio_series("u.xdmf", [("quad", QUADS)], fields)
+    with pytest.raises(InputError) as err:
+        read_sequence("u.xdmf")
+    assert expect.format(p="u.xdmf") in str(err.value)
+    assert "positions = points + displacement" in str(err.value) or "every step" in str(err.value)
+
+
+def _hand_xdmf(path, frames, topo, topo_attrs="", geo_attrs='GeometryType="XYZ"', times=None, shared=False):
+    """A Temporal collection as ParaView / the Xdmf library write it, heavy data in ``<name>.data.h5``."""
+    h5 = path.name + ".data.h5"
+    with h5py.File(path.parent / h5, "w") as f:
+        f["topo"] = np.asarray(topo)
+        for s, x in enumerate(frames):
+            f[f"geo{s}"] = np.asarray(x)
+    times = range(len(frames)) if times is None else times
+    grids = "".join(
+        f'<Grid Name="g{s}" GridType="Uniform"><Time Value="{t}"/>'
+        f'<Topology TopologyType="Triangle" NumberOfElements="{len(topo)}" {topo_attrs}>'
+        f'<DataItem Dimensions="{len(topo)} 3" NumberType="Int" Format="HDF">{h5}:/topo</DataItem></Topology>'
+        f'<Geometry {geo_attrs}><DataItem Dimensions="{" ".join(map(str, np.shape(frames[s])))}" NumberType="Float" '
+        f'Precision="8" Format="HDF">{h5}:/geo{0 if shared else s}</DataItem></Geometry>'
+        f'<Attribute Name="displacement" Center="Node"><DataItem Dimensions="9 3" Format="XML">{" 0" * 27}'
+        f'</DataItem></Attribute></Grid>' for s, t in enumerate(times))
+    path.write_text(f'<?xml version="1.0" ?><Xdmf Version="3.0"><Domain><Grid Name="ts" GridType="Collection" '
+                    f'CollectionType="Temporal">{grids}</Grid></Domain></Xdmf>')
+    return path
+
+
+def test_hand_written_base_offset_is_honoured(tmp_path):
+    # 1-based connectivity with BaseOffset="1" and an unused last vertex (so a shift would still be "in range")
+    frames = [np.vstack([GRID, [[9, 9, 9]]]) + [0, 0, s] for s in range(2)]
+    p = _hand_xdmf(tmp_path / "one_based.xmf", frames, TRIS + 1, topo_attrs='BaseOffset="1"')
+    seq = read_sequence(p)
+    assert seq.faces.tolist() == TRIS.tolist()
+    np.testing.assert_array_equal(seq.positions, frames)
+
+
+def test_hand_written_frames_follow_time_values(tmp_path):
+    frames = [GRID + [0, 0, s] for s in range(4)]
+    p = _hand_xdmf(tmp_path / "restart.xmf", frames, TRIS, times=[0.0, 0.5, 1.5, 1.0])  # appended out of order
+    np.testing.assert_array_equal(read_sequence(p).positions, [frames[0], frames[1], frames[3], frames[2]])
+
+
+@pytest.mark.parametrize("times,expect", [
+    ([0, 1, 1], "grid 'g1' and grid 'g2' of the main collection have the same Time 1.0 in {p}; expected one grid "
+                "per time value"),
+    ([0, "soon", 2], "Time 'soon' of grid 'g1' of the main collection in {p} is not a number; expected one finite "
+                     "time value per grid"),
+], ids=["duplicate", "non-numeric"])
+def test_hand_written_bad_time_values_are_refused(tmp_path, times, expect):
+    p = _hand_xdmf(tmp_path / "t.xmf", [GRID] * 3, TRIS, times=times)
+    with pytest.raises(InputError) as err:
+        read_sequence(p)
+    assert expect.format(p=p) in str(err.value)
+
+
+@pytest.mark.parametrize("geo_attrs", ['GeometryType="XY"', 'Type="XY"'], ids=["xdmf2", "xdmf3"])
+def test_hand_written_xy_geometry_gets_z_zero(tmp_path, geo_attrs):
+    frames = [GRID[:, :2] + [0, 0.5 * s] for s in range(2)]
+    seq = read_sequence(_hand_xdmf(tmp_path / "xy.xmf", frames, TRIS, geo_attrs=geo_attrs))
+    np.testing.assert_array_equal(seq.positions, [np.column_stack([f, np.zeros(9)]) for f in frames])
+
+
+def test_hand_written_geometry_must_match_its_type(tmp_path):
+    p = _hand_xdmf(tmp_path / "xy3.xmf", [GRID] * 2, TRIS, geo_attrs='Type="XY"')  # XY declared, 3 columns written
+    with pytest.raises(InputError, match=r"Geometry XY of grid 'g0' .* shape \(9, 3\) in .*xy3\.xmf; expected \(N, 2\)"):
+        read_sequence(p)
+
+
+def test_hand_written_scene_sharing_one_geometry_is_refused(tmp_path):
+    # Static mesh + a per-step displacement attribute: the geometry never moves.
+    p = _hand_xdmf(tmp_path / "static.xmf", [GRID] * 3, TRIS, shared=True)
+    with pytest.raises(InputError) as err:
+        read_sequence(p)
+    msg = str(err.value)
+    assert (f"the 3 grids of the main collection in {p} share one Geometry dataset static.xmf.data.h5:/geo0, so the "
+            f"scene does not move (its grids carry the attributes displacement); expected one Geometry per frame") in msg
