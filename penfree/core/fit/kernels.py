@@ -154,6 +154,10 @@ def _finish_kernel(tot, use_w, n):
     return f
 
 
+#: Relative size of the rounding in the fit's residual sum of squares (1e3 float64 ulps).
+_RESID_RTOL = 1e3 * 2.0**-52
+
+
 @njit(cache=True)
 def _subspace_kernel(C, G, qq, n_eff, floor, rtol, tol):
     lam, E = np.linalg.eigh(C)
@@ -176,7 +180,14 @@ def _subspace_kernel(C, G, qq, n_eff, floor, rtol, tol):
             g2 = G[2, 0] * E[0, k] + G[2, 1] * E[1, k] + G[2, 2] * E[2, k]
             explained += (g0 * g0 + g1 * g1 + g2 * g2) / lam[k]
     dof = 3.0 * (n_eff - 1.0 - r)
-    sigma2 = max(qq - explained, 0.0) / dof if dof > 0 else 0.0
+    # qq - explained cancels: on exact affine data the difference is rounding of the
+    # order of eps * qq, which at a large slope (x_pred = 1e6 x) alone exceeds the
+    # tolerance. A residual below _RESID_RTOL * qq is taken as none: the slope error it
+    # could hide is ~1e-6 of the slope itself.
+    resid = qq - explained
+    if resid <= _RESID_RTOL * max(qq, explained):
+        resid = 0.0
+    sigma2 = resid / dof if dof > 0 else 0.0
     for k in range(3):
         keep[k] = keep[k] and sigma2 <= tol * tol * lam[k]
     return lam, E, keep

@@ -79,17 +79,29 @@ def as_positions(a, name: str, n: int | None = None, check_finite: bool = True) 
 
 
 def as_weights(weights, n: int) -> np.ndarray | None:
-    """Validate `(N,)` weights (finite, >= 0, positive sum); None stays None."""
+    """Validate `(N,)` weights (real, finite, >= 0, positive sum); None stays None.
+
+    The fit depends on the weights' ratios only: weights whose largest lies outside
+    [2^-64, 2^64] are scaled by a power of two (exactly) to a largest weight in
+    [0.5, 1), so that weights of 1e-300 or 1e300 neither underflow nor overflow the
+    fit's sums. Other weights are kept as given (the moments' ``W``, ``C``, ``G`` are
+    then their sums).
+    """
     if weights is None:
         return None
-    w = np.ascontiguousarray(np.asarray(weights, dtype=np.float64))
+    raw = np.asarray(weights)
+    if raw.dtype.kind not in "iuf":
+        raise InputError(f"weights must be real numbers; got dtype {raw.dtype}")
+    w = np.ascontiguousarray(raw, dtype=np.float64)
     if w.shape != (n,):
         raise InputError(f"weights must be ({n},) to match x; got shape {w.shape}")
     if not np.isfinite(w).all() or (w < 0).any():
         raise InputError("weights must be finite and >= 0; got a negative or non-finite weight")
-    if not w.sum() > 0:
+    top = float(w.max()) if n else 0.0
+    if not top > 0:
         raise InputError("weights must have a positive sum; got all zero")
-    return w
+    e = int(np.frexp(top)[1])
+    return w if -64 < e <= 64 else np.ldexp(w, -e)
 
 
 def fit_moments(x_prev, x, weights=None, *, validate: bool = True) -> Moments:
@@ -172,7 +184,9 @@ def significant_subspace(m: Moments, slope_tol: float | None = None):
        error ``sqrt(sigma^2 / lam)`` is at most ``slope_tol``, where
        ``sigma^2`` is the residual variance per coordinate and unit weight of
        the affine fit on the directions that pass 1-2, with
-       ``3 (n_eff - 1 - r)`` degrees of freedom (zero when the fit is exact).
+       ``3 (n_eff - 1 - r)`` degrees of freedom (zero when the fit is exact, or
+       when the residual sum is within float64 rounding, 1e3 ulps, of the
+       displacement's: a large exact scale change is not noise).
 
     Test 3 is the noise-aware cut-off. An almost straight cable with
     sub-micron lateral jitter has lateral eigenvalues far above machine

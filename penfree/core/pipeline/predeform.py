@@ -118,8 +118,15 @@ def predeform(x_prev, x, *, edges=None, faces=None, contact_radius=0.0, thicknes
     >>> r.model, round(r.query_radius, 3)
     ('none', 0.2)
     """
-    x_arr = np.asarray(x)
-    seq = Sequence(positions=np.stack([np.asarray(x_prev, dtype=x_arr.dtype), x_arr]), edges=edges, faces=faces,
+    xp_arr, x_arr = np.asarray(x_prev), np.asarray(x)
+    for name, a in (("x_prev", xp_arr), ("x", x_arr)):
+        if a.dtype.kind not in "iuf":
+            raise InputError(f"{name} must be real numbers; got dtype {a.dtype}")
+    if xp_arr.shape != x_arr.shape:
+        raise InputError(f"x_prev and x must have the same (N, 3) shape; got {xp_arr.shape} and {x_arr.shape}")
+    # float32 only when both are: an integer or mixed pair is computed (and returned) in float64.
+    dtype = np.float32 if xp_arr.dtype == x_arr.dtype == np.float32 else np.float64
+    seq = Sequence(positions=np.stack([xp_arr.astype(dtype), x_arr.astype(dtype)]), edges=edges, faces=faces,
                    weights=weights, thickness=thickness, contact_radius=contact_radius,
                    obstacles=list(obstacles or []), origin="predeform").validate()
     if seq.kind == "points":

@@ -409,3 +409,38 @@ def test_unweighted_moments_equal_unit_weights(rng, dtype):
     a, b = F.fit_moments(x_prev, x), F.fit_moments(x_prev, x, np.ones(3000))
     for name in ("W", "c", "u", "C", "G", "qq", "n_eff", "coord_scale"):
         np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-12, atol=1e-12, err_msg=name)
+
+
+@pytest.mark.parametrize("scale", [1e2, 1e4, 1e6, 1e-6], ids=["x1e2", "x1e4", "x1e6", "x1e-6"])
+def test_large_exact_scale_change_is_recovered_like_lstsq(scale):
+    """x_pred = s x exactly: the residual is rounding only, never noise; rank 1 and a miss of 5.6e5 at 1e6 before."""
+    x = np.random.default_rng(5).random((12, 3)) - 0.5
+    x_prev = 2 * x - scale * x
+    _, D, u, r = fit(x_prev, x)
+    D_ls, u_ls = lstsq_fit(x_prev, x)
+    assert r == 3
+    np.testing.assert_allclose(D, D_ls, rtol=0, atol=1e-9 * scale + 1e-12)
+    np.testing.assert_allclose(D, (scale - 1.0) * np.eye(3), rtol=0, atol=1e-9 * scale + 1e-12)
+
+
+@pytest.mark.parametrize("factor", [5e-324, 1e-200, 3.7, 1e200], ids=["subnormal", "tiny", "plain", "huge"])
+def test_weights_only_count_by_their_ratios(rng, factor):
+    """Weights of 1e-200 divided by zero (sum of squares underflowed); 1e200 blamed the positions."""
+    x = rng.random((40, 3))
+    x_prev = x - 0.01 + 1e-3 * rng.random((40, 3))
+    w = np.full(40, factor)
+    w[:5] = 0.0
+    ref = np.where(w > 0, 1.0, 0.0)
+    m, D, u, r = fit(x_prev, x, w)
+    m1, D1, u1, r1 = fit(x_prev, x, ref)
+    assert r == r1 == 3 and m.n_eff == pytest.approx(35.0, rel=1e-14) and m1.n_eff == 35.0
+    np.testing.assert_allclose(D, D1, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(u, u1, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("bad", [np.ones(4, dtype=complex), np.array(["1"] * 4), np.array([1, None, 1, 1])],
+                         ids=["complex", "strings", "objects"])
+def test_weights_must_be_real_numbers(bad):
+    x = np.eye(4, 3)
+    with pytest.raises(InputError, match="weights must be real numbers"):
+        F.fit_moments(x - 0.1, x, bad)

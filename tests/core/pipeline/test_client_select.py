@@ -169,6 +169,28 @@ def test_client_model_validation():
 
 
 class TestPredeform:
+    @pytest.mark.parametrize("dtypes", [(np.int64, np.int64), (np.float64, np.int32), (np.float64, np.float32)],
+                             ids=["integers", "int-x", "float32-x"])
+    def test_any_real_dtype_is_computed_in_float64(self, dtypes):
+        """x_prev was cast to x's dtype: an integer x truncated x_prev's motion (0.9 -> 1.0, x_def moved 0.083)."""
+        X0 = np.array([[0, 0, 0], [4, 0, 0], [0, 4, 0], [0, 0, 4]])
+        step = np.array([0.0, 0.0, 1.0 if dtypes[0] == np.int64 else 0.9])
+        x_prev, x = (X0 - step).astype(dtypes[0]), X0.astype(dtypes[1])
+        r = penfree.predeform(x_prev, x, faces=[[0, 1, 2]], contact_radius=0.1)
+        ref = penfree.predeform(x_prev.astype(np.float64), x.astype(np.float64), faces=[[0, 1, 2]],
+                                contact_radius=0.1)
+        assert r.x_def.dtype == np.float64 and np.array_equal(r.x_def, ref.x_def) and r.model == ref.model
+        assert r.query_radius == pytest.approx(step[2], abs=1e-12)  # max(2 dhat, max |x_pred - x|)
+        both32 = penfree.predeform(x_prev.astype(np.float32), x.astype(np.float32), faces=[[0, 1, 2]],
+                                   contact_radius=0.1)
+        assert both32.x_def.dtype == np.float32
+
+    def test_positions_must_be_real_and_alike(self):
+        with pytest.raises(InputError, match="x must be real numbers"):
+            penfree.predeform(X - V, X.astype(complex), edges=EDGES, contact_radius=1.0)
+        with pytest.raises(InputError, match="same .N, 3. shape"):
+            penfree.predeform((X - V)[:-1], X, edges=EDGES, contact_radius=1.0)
+
     def test_moves_and_returns_the_radius_to_keep(self):
         r = penfree.predeform(X - V, X, edges=EDGES, contact_radius=1.0)
         np.testing.assert_allclose(r.x_def, X + V, atol=1e-12)
