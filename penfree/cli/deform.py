@@ -66,6 +66,8 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
     from ..formats.result import write_result
     from ..scaleout import is_scaleout
 
+    if dhat is not None and not client_model:
+        raise InputError("--dhat is the contact offset of --client-model's replay; give --client-model too")
     if is_scaleout(input_paths, workers, scheduler):  # several inputs / Dask: penfree.scaleout
         if weights_name or usd_prims or usd_obstacles or client_model:
             raise InputError("--weights, --prim, --obstacle and --client-model are not supported with several "

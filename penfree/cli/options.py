@@ -25,6 +25,14 @@ def parse_frames(text):
     return start, stop
 
 
+def no_step_error(path, frames, kind) -> InputError:
+    """The error for a verify that would check nothing ("all steps safe" about nothing is a false claim)."""
+    if frames is None:
+        return InputError(f"{path} holds no step to verify")
+    span = ":".join("" if v is None else str(v) for v in frames)
+    return InputError(f"--frames {span} selects no step of {path} ({kind}); nothing to verify")
+
+
 frames_option = click.option(
     "--frames", "frames", default=None, metavar="START:STOP",
     help="Only these frames (Python slice, e.g. 10:50 or :20).",

@@ -3,7 +3,7 @@
 
 import click
 
-from .options import Progress, echo_json
+from .options import Progress, echo_json, no_step_error
 
 
 class _Bar:
@@ -58,6 +58,9 @@ def verify(specs, *, thickness, frames, mode, max_pairs, workers, scheduler, thr
                               on_total=bar.total, strict=strict)
     finally:
         bar.close()
+    for rep in reports:
+        if not rep.steps:
+            raise no_step_error(rep.origin, frames, rep.kind)
     if as_json:
         echo_json({"ok": all(r.ok for r in reports), "files": [r.to_dict() for r in reports]})
     else:

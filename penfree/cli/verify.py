@@ -5,7 +5,7 @@ import click
 from ..constants import DEFAULT_MAX_PAIRS
 from ..errors import InputError
 from .options import (
-    Progress, echo_json, frames_option, json_option, parse_frames, scaleout_options, set_threads,
+    Progress, echo_json, frames_option, json_option, no_step_error, parse_frames, scaleout_options, set_threads,
     thickness_option, threads_option, usd_options,
 )
 
@@ -100,8 +100,7 @@ def command(paths, thickness, frames, threads, as_json, max_pairs, mode, strict,
                              max_pairs=max_pairs, progress=bar, strict=strict, prims=usd_prims,
                              obstacles=usd_obstacles)
     if not report.steps:  # "all steps safe" about nothing would be a false claim
-        raise InputError(f"--frames {frames} selects no step of {path} ({report.kind}); "
-                         f"nothing to verify" if frames is not None else f"{path} holds no step to verify")
+        raise no_step_error(path, frame_slice, report.kind)
     if as_json:
         echo_json(report.to_dict())
     else:

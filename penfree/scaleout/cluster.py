@@ -30,8 +30,9 @@ def client(workers=None, scheduler=None):
     if scheduler is not None:
         try:
             c = distributed.Client(scheduler, timeout="10s")
-        except (OSError, TimeoutError) as exc:
-            raise InputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:  # ValueError: a malformed address
+            raise InputError(f"--scheduler {scheduler}: cannot connect ({exc}); expected the address of a running "
+                             f"dask scheduler, e.g. tcp://host:8786") from None
         try:
             yield c
         finally:

@@ -51,6 +51,14 @@ def test_deform_client_model_needs_auto(two_rods, tmp_path):
     assert not out.exists()
 
 
+def test_deform_dhat_needs_client_model(two_rods, tmp_path):
+    """--dhat without --client-model was accepted and ignored."""
+    out = tmp_path / "d.h5"
+    r = CliRunner().invoke(main, ["deform", str(two_rods), "-o", str(out), "--dhat", "0.01"])
+    assert r.exit_code == 2 and "--dhat" in r.output and "--client-model" in r.output
+    assert not out.exists()
+
+
 def test_report_client_without_ipctk_exits_2(two_rods, tmp_path, monkeypatch):
     d = tmp_path / "d.h5"
     assert CliRunner().invoke(main, ["deform", str(two_rods), "-o", str(d)]).exit_code == 0

@@ -122,3 +122,26 @@ def test_read_only_output_directory_is_one_line(cli, tmp_path, scheduler, monkey
     r = cli("deform", a, b, "-o", ro, "--scheduler", scheduler, expect=2)
     assert "Read-only file system" in r.stderr and str(ro) in r.stderr
     assert not os.listdir(ro)
+
+
+def test_verify_of_no_step_is_exit_2_as_serial(cli, tmp_path, scheduler):
+    """With --scheduler, a --frames slice selecting no step said "0 step(s) checked ... all steps safe", exit 0."""
+    a, b = cloth(tmp_path / "a.h5", 10), cloth(tmp_path / "b.h5", 10)
+    serial = cli("verify", a, "--frames", "50:60", expect=2)
+    one = cli("verify", a, "--frames", "50:60", "--scheduler", scheduler, expect=2)
+    several = cli("verify", a, b, "--frames", "50:60", "--scheduler", scheduler, expect=2)
+    for r in (serial, one, several):
+        assert "--frames 50:60 selects no step of" in r.stderr and "a.h5" in r.stderr and "safe" not in r.output
+
+
+@pytest.mark.parametrize("command,address", [("deform", "bogus"), ("verify", "tcp://"), ("report", "tcp://host:port")])
+def test_malformed_scheduler_address_is_one_line(cli, cli_process, tmp_path, command, address):
+    """A malformed address raised ValueError: ~74 lines of traceback and exit 1 ("a check failed").
+    In a real process: a failed in-process Client can leave its event loop behind."""
+    a = cloth(tmp_path / "a.h5")
+    if command == "report":
+        cli("deform", a, "-o", tmp_path / "a_def.h5", expect=0)
+        a = tmp_path / "a_def.h5"
+    args = {"deform": ["-o", tmp_path / "out.h5"], "verify": [], "report": ["-o", tmp_path / "rep"]}[command]
+    r = cli_process(command, a, *args, "--scheduler", address, expect=2)
+    assert f"--scheduler {address}: cannot connect" in r.stderr and len(r.stderr.strip().splitlines()) == 1

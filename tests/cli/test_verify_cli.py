@@ -135,6 +135,20 @@ def test_deform_result_verifies(cli, tmp_path):
     assert cli("verify", p, "--mode", "certificate").exit_code == 1
 
 
+@pytest.mark.parametrize("option", ["--prim", "--obstacle"])
+def test_usd_prim_options_on_a_result_are_refused(cli, tmp_path, option):
+    """verify ignored --prim / --obstacle on a deform result (deform refuses them on HDF5)."""
+    from penfree.core.pipeline.deform import deform_sequence
+    from penfree.formats.result import write_result
+
+    frames, F = cloth_frames(T=3)
+    seq = Sequence(positions=frames, faces=F, origin="cloth").validate()
+    p = tmp_path / "res.h5"
+    write_result(p, seq, deform_sequence(seq).steps, {"input": "cloth"})
+    r = cli("verify", p, option, "/World/Cloth", expect=2)
+    assert "--prim and --obstacle choose prims of a USD stage" in r.stderr and "res.h5" in r.stderr
+
+
 def test_bad_input_exit_2(cli, tmp_path):
     p = tmp_path / "broken.h5"
     p.write_bytes(b"not an hdf5 file")

@@ -275,6 +275,9 @@ def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEF
     if mode not in MODES:
         raise InputError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
     if is_result_file(path):
+        if prims or obstacles:
+            raise InputError(f"--prim and --obstacle choose prims of a USD stage; {path} is a deform result "
+                             f"(its scene and obstacles are stored in it)")
         return verify_result(read_result(path), thickness=thickness, frames=frames, mode=mode,
                              max_pairs=max_pairs, progress=progress, strict=strict)
     seq = read_sequence(path, prims=prims, obstacles=obstacles)
