@@ -66,19 +66,16 @@ def as_topology(T, k: int, n_vertices: int, name: str = "E") -> np.ndarray:
     if T is None:
         return np.zeros((0, k), dtype=np.int64)
     T = np.asarray(T)
-    if T.size == 0:
+    if T.size == 0 and not (T.ndim == 2 and T.shape[0] > 0):  # (0,), (0, k): none; (3, 0) is rows without indices
         return np.zeros((0, k), dtype=np.int64)
     if T.ndim != 2 or T.shape[1] != k:
         raise InputError(f"{name} must be (M, {k}); got {T.shape}")
     if not np.issubdtype(T.dtype, np.integer):
         raise InputError(f"{name} must be an integer array; got dtype {T.dtype}")
-    T = np.ascontiguousarray(T, dtype=np.int64)
-    lo, hi = int(T.min()), int(T.max())
+    lo, hi = int(T.min()), int(T.max())  # before the int64 cast: a uint64 2**64 - 1 would read as -1
     if lo < 0 or hi >= n_vertices:
-        raise InputError(
-            f"{name} indices must lie in [0, {n_vertices}); got range [{lo}, {hi}]"
-        )
-    return T
+        raise InputError(f"{name} indices must lie in [0, {n_vertices}); got range [{lo}, {hi}]")
+    return np.ascontiguousarray(T, dtype=np.int64)
 
 
 def edges_from_faces(F) -> np.ndarray:

@@ -72,6 +72,16 @@ def test_validation_messages():
     assert as_topology(None, 3, 5).shape == (0, 3)
 
 
+def test_index_messages_show_the_indices_as_given():
+    """A uint64 index 2**64 - 1 was reported as range [-1, 0]; rows without indices ((3, 0)) counted as none."""
+    with pytest.raises(InputError, match=r"got range \[0, 18446744073709551615\]"):
+        as_topology(np.array([[0, 2**64 - 1]], dtype=np.uint64), 2, 3)
+    with pytest.raises(InputError, match=r"E must be \(M, 2\); got \(3, 0\)"):
+        as_topology(np.zeros((3, 0), dtype=np.int64), 2, 3)
+    for empty in (np.zeros(0, np.int64), np.zeros((0, 2), np.int64), np.zeros((0, 3), np.int64), []):
+        assert as_topology(empty, 2, 3).shape == (0, 2)
+
+
 def _edge_set_oracle(E, F):
     """Plain-Python edge set: sorted pairs of the faces' sides and the segments, no (i, i)."""
     out = {tuple(sorted(e)) for e in E}
