@@ -829,13 +829,8 @@ def test_collider_of_an_unsupported_type_is_refused(tmp_path):
     assert str(path) in line and "/World/Grains" in line and "PhysicsCollisionAPI" in line and "Points" in line
 
 
-@pytest.mark.parametrize("scale,normal", [
-    ((1.0, 1.0, 0.0), (0.0, 0.0, 1.0)),  # flattened along its own axis: still the plane z = 0.5
-    ((2.0, 3.0, -1.0), (0.0, 0.0, -1.0)),  # mirrored: the free side follows the geometry
-    ((1.0, 2.0, 4.0), (0.0, 0.0, 1.0)),
-], ids=["zero-axis-scale", "mirrored", "scaled"])
-def test_plane_normal_under_singular_and_mirrored_scales(tmp_path, scale, normal):
-    path = tmp_path / "plane.usda"
+def _scaled_floor(path, scale):
+    """A stage with a falling sheet and a floor Plane (axis Z) at z = 0.5 under `scale`; the Plane."""
     stage = _stage(path)
     _falling_sheet(stage, [1.0, 0.9])
     plane = UsdGeom.Plane.Define(stage, "/World/Floor")
@@ -843,7 +838,17 @@ def test_plane_normal_under_singular_and_mirrored_scales(tmp_path, scale, normal
     plane.AddTranslateOp().Set(Gf.Vec3d(0.0, 0.0, 0.5))
     plane.AddScaleOp().Set(Gf.Vec3f(*scale))
     stage.GetRootLayer().Save()
-    (ob,) = read_usd(str(path)).obstacles
+    return plane
+
+
+@pytest.mark.parametrize("scale,normal", [
+    ((1.0, 1.0, 0.0), (0.0, 0.0, 1.0)),  # flattened along its own axis: still the plane z = 0.5
+    ((2.0, 3.0, -1.0), (0.0, 0.0, -1.0)),  # mirrored: the free side follows the geometry
+    ((1.0, 2.0, 4.0), (0.0, 0.0, 1.0)),
+], ids=["zero-axis-scale", "mirrored", "scaled"])
+def test_plane_normal_under_singular_and_mirrored_scales(tmp_path, scale, normal):
+    plane = _scaled_floor(tmp_path / "plane.usda", scale)
+    (ob,) = read_usd(str(tmp_path / "plane.usda")).obstacles
     assert np.array_equal(ob.normal, normal) and ob.offset == 0.5 * normal[2]
     if all(scale):  # where the transform is invertible, the inverse-transpose rule is the oracle
         L = np.array(UsdGeom.Xformable(plane).ComputeLocalToWorldTransform(0))[:3, :3]
@@ -853,12 +858,7 @@ def test_plane_normal_under_singular_and_mirrored_scales(tmp_path, scale, normal
 
 def test_plane_flattened_within_itself_is_refused(tmp_path):
     path = tmp_path / "plane.usda"
-    stage = _stage(path)
-    _falling_sheet(stage, [1.0, 0.9])
-    plane = UsdGeom.Plane.Define(stage, "/World/Floor")
-    plane.CreateAxisAttr("Z")
-    plane.AddScaleOp().Set(Gf.Vec3f(0.0, 1.0, 1.0))
-    stage.GetRootLayer().Save()
+    _scaled_floor(path, (0.0, 1.0, 1.0))
     line = _error_line(_run("info", path))
     assert str(path) in line and "/World/Floor" in line and "flattens it" in line
 
