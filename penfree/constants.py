@@ -212,3 +212,15 @@ CONTACT_HOLD_FACTOR = 1.0
 #: is the largest trust region a vertex in contact can have, so a vertex that moved
 #: farther moved with what it touches (a coil's turns swinging together).
 CONTACT_REST_STEP = DEFAULT_GAMMA
+
+
+# --- report (penfree/report) ---------------------------------------------------------
+#: Largest mean CD-pass count a baseline report may hold. K is a count of passes (>= 1,
+#: SPEC section 7); float64 holds every integer only up to 2^53, beyond which a count is
+#: no longer one (no recording comes near it: its trust regions would be 2^53 times
+#: smaller than its steps).
+BASELINE_K_MAX = 2.0 ** 53
+#: Relative difference above which a file's stored stats/ differ from the statistics
+#: computed again (the same computation gives the same bits; this only forgives a
+#: reordered sum).
+STORED_STATS_RTOL = 1e-9

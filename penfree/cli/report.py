@@ -1,8 +1,10 @@
 """``penfree report FILE... -o DIR``: Markdown + JSON (+ PNG) report and CI checks."""
 
+import math
 import os
 
 import click
+from click.core import ParameterSource
 
 from ..constants import DEFAULT_CD_SHARE, DEFAULT_FRAME_MS, DEFAULT_GAMMA
 from ..errors import InputError
@@ -12,6 +14,25 @@ from .options import (
     set_threads,
     threads_option,
 )
+
+
+class Threshold(click.ParamType):
+    """A CI threshold: any finite number (no range of its own; NaN and infinities are refused)."""
+
+    name = "float"
+
+    def convert(self, value, param, ctx):
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"{value!r} is not a number", param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{value} is not a finite number", param, ctx)
+        return v
+
+
+#: Options that only the real-client replay reads: (parameter name, option).
+CLIENT_ONLY = (("truncation", "--truncation"), ("radius_rule", "--radius"), ("dhat", "--dhat"), ("every", "--every"))
 
 
 @click.command("report")
@@ -40,11 +61,13 @@ from .options import (
 @frames_option
 @threads_option
 @json_option
-@click.option("--fail-if-uncertified", is_flag=True, help="Check: every step's map is certified.")
-@click.option("--min-speedup", type=FiniteFloat(), default=None, metavar="X",
-              help="Check: projected speedup (K_1pct rule) >= X.")
-@click.option("--min-hit-rate-gain", type=FiniteFloat(), default=None, metavar="POINTS",
-              help="Check: hit rate vs the next frame gains >= POINTS percentage points (deformed - baseline).")
+@click.option("--fail-if-uncertified", is_flag=True,
+              help="Check: every step's map is certified and its stored deformed state is that map's image.")
+@click.option("--min-speedup", type=Threshold(), default=None, metavar="X",
+              help="Check: projected speedup (K_1pct rule) >= X (a finite number).")
+@click.option("--min-hit-rate-gain", type=Threshold(), default=None, metavar="POINTS",
+              help="Check: hit rate vs the next frame gains >= POINTS percentage points (deformed - baseline; "
+              "a finite number, negative allows a loss).")
 @click.option("--baseline", "baseline_path", type=click.Path(), default=None, metavar="REPORT.json",
               help="Check: compare with a stored report.json (needs --max-regression).")
 @click.option("--max-regression", type=FiniteFloat(min=0.0), default=None, metavar="PCT",
@@ -56,7 +79,9 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
     """Report trust-region statistics of `penfree deform` outputs, with optional CI checks.
 
     Exit status: 0 all checks passed, 1 a check failed (the report is still written),
-    2 unusable input. Frame times and speedups are projected, never measured.
+    2 unusable input (a baseline that cannot be compared included). Frame times and
+    speedups are projected, never measured. With any check the statistics are computed
+    from the positions and deformed states, never read from the file's stats/ group.
 
     \b
       penfree report deformed.h5 -o report/
@@ -66,10 +91,17 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
     from ..report.build import (
         check_report_dir, load_report_json, make_file_report, open_result, select_steps, stored_stats, write_report,
     )
+    from ..report.baseline import baseline_warnings, match_baseline
     from ..report.checks import run_checks
 
     if (baseline_path is None) != (max_regression is None):
         raise InputError("--baseline and --max-regression go together; give both or neither")
+    ctx = click.get_current_context()
+    if not client:
+        for name, flag in CLIENT_ONLY:
+            if ctx.get_parameter_source(name) in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT):
+                raise InputError(f"{flag} applies only to the real-client replay; give --client ipctk or drop {flag}")
+    ci = fail_if_uncertified or min_speedup is not None or min_hit_rate_gain is not None or baseline_path is not None
     from ..scaleout import expand_inputs
 
     # Several plain files run here as before; directories and globs expand; Dask on request.
@@ -79,6 +111,8 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
     frame_slice = parse_frames(frames)
     set_threads(threads)
     baseline = load_report_json(baseline_path) if baseline_path else None
+    if baseline is not None:
+        match_baseline(files, baseline, baseline_path)  # an ambiguous match is exit 2 before any work
     client_opts = None
     if client:
         from ..core.trust.client import load_ipctk
@@ -94,21 +128,29 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
 
         if client:
             raise InputError("--client is not supported with --workers or --scheduler")
-        opts = dict(frames=frame_slice, cd_share=cd_share, frame_ms=frame_ms, replay=replay, ladder=not no_ladder)
+        # A stored stats/ group is a cache for reading; a CI check never trusts it.
+        opts = dict(frames=frame_slice, cd_share=cd_share, frame_ms=frame_ms, replay=replay, ladder=not no_ladder,
+                    use_stored_stats=not ci)
         files, reports = scaleout.report_entries(files, opts, workers=workers, scheduler=scheduler, threads=threads)
     for path, res in zip(files, results if not scale else ()):
-        work = res.n_steps * ((stored_stats(res, replay) is None) + (not no_ladder)) + (
+        work = res.n_steps * ((ci or stored_stats(res, replay) is None) + (not no_ladder)) + (
             -(-res.n_steps // every) if client else 0)
         with Progress(work, f"report {os.path.basename(path)}") as bar:
             reports.append(make_file_report(path, res, cd_share=cd_share, frame_ms=frame_ms, replay=replay,
-                                            ladder=not no_ladder, progress=bar, client=client_opts))
+                                            ladder=not no_ladder, progress=bar, client=client_opts,
+                                            use_stored_stats=not ci))
     checks = run_checks(reports, fail_if_uncertified=fail_if_uncertified, min_speedup=min_speedup,
-                        min_hit_rate_gain=min_hit_rate_gain, baseline=baseline, max_regression=max_regression)
+                        min_hit_rate_gain=min_hit_rate_gain, baseline=baseline, max_regression=max_regression,
+                        baseline_name=baseline_path)
     options = {"cd_share": cd_share, "frame_ms": frame_ms, "replay": replay, "ladder": not no_ladder,
                "frames": frames, "gamma": DEFAULT_GAMMA}
     if client:
         options.update(client_opts)
     doc = write_report(outdir, reports, overwrite, options=options, checks=checks, plots=not no_plots)
+    if baseline is not None:  # after the output is written: an exit 2 prints one line only
+        for line in baseline_warnings(baseline, baseline_path, options, reports, match_baseline(
+                [r["file"] for r in reports], baseline, baseline_path)):
+            click.echo(f"penfree: {line}", err=True)
     if as_json:
         echo_json(doc)
     else:
@@ -122,17 +164,21 @@ def _fmt(v, spec):
 
 
 def _print_summary(doc, outdir):
+    from ..report.checks import entry_labels
+
     click.echo(f"penfree report -> {outdir}/report.md, report.json")
-    for rep in doc["files"]:
+    for rep, label in zip(doc["files"], entry_labels(doc["files"])):
         sm = rep["summary"]
         b, d, p = sm["baseline"], sm["deformed"], sm["projected"]["k_1pct"]
         hb, hd = (None if v is None else 100 * v for v in (b["hit_rate_next"], d["hit_rate_next"]))
-        click.echo(f"  {rep['name']}: {sm['n_steps']} steps; hit rate vs next "
+        click.echo(f"  {label}: {sm['n_steps']} steps; hit rate vs next "
                    f"{_fmt(hb, '.1f')}% -> {_fmt(hd, '.1f')}%; "
                    f"K_1pct {_fmt(b['k_1pct_next'], '.2f')} -> {_fmt(d['k_1pct_next'], '.2f')}; "
                    f"projected speedup x{_fmt(p['speedup'], '.3f')} (f={sm['projected']['cd_share']:g}, "
                    f"T_frame={sm['projected']['frame_ms']:g} ms); "
                    f"certified: {'all' if rep['certificate']['all_certified'] else 'NOT ALL'}")
+        if rep.get("stats_note"):
+            click.echo(f"  note [{label}]: {rep['stats_note']}")
     pl = doc["plots"]
     if pl["status"] != "written":
         click.echo(f"  plots {pl['status']}: {pl['reason']}")

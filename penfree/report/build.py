@@ -21,11 +21,15 @@ report.json key reference (schema ``penfree_report`` = 1; NaN and inf are writte
   ``message``}; ``all_checks_passed``.
 - ``files``: one entry per input file:
 
-  - ``file`` (path as given), ``name`` (base name; the key used to match a baseline);
+  - ``file`` (path as given; the key used to match a baseline entry), ``name`` (base name;
+    matched when the path is not and the name is unambiguous; checks and report.md name
+    an entry by it where it is unique among the inputs, else by ``file``);
   - ``scene``: ``kind``, ``n_vertices``, ``n_frames``, ``n_steps``, ``thickness``,
     ``dtype``; ``deform_options``: the result file's attributes;
-  - ``stats_source``: ``file`` (its ``stats/`` group) or ``computed``; ``stats_note`` (only
-    when a complete ``stats/`` group was unusable, e.g. not numeric): why it was ignored;
+  - ``stats_source``: ``file`` (its ``stats/`` group) or ``computed`` (always when a CI check
+    is requested: the statistics are computed from the positions and deformed states);
+    ``stats_note`` (only when a complete ``stats/`` group was unusable, e.g. not numeric,
+    or differs from the computed statistics): why it was not used;
   - ``summary``: `penfree.core.trust.summary.summarize` output: ``n_steps``, ``n_steps_next``,
     ``fit_ms_mean``, ``fit_ms_median``, ``hit_rate_gain_next``, ``hit_rate_gain_pred``
     (fractions),
@@ -38,8 +42,12 @@ report.json key reference (schema ``penfree_report`` = 1; NaN and inf are writte
     rule ``k_1pct`` / ``k_any`` / ``replay_*``:
     ``k_baseline``, ``k_deformed``, ``frame_ms``, ``speedup``);
   - ``certificate``: ``min_margin``, ``all_certified``, ``n_uncertified``,
-    ``uncertified_frames``, ``n_started_dirty`` (steps whose start state already held
-    intersections, kept as they were), ``models`` and ``projections`` ({name: steps});
+    ``uncertified_frames`` (a step is certified when its stored margin claims it, its
+    map(s) pass the certificate again and ``steps/deformed`` is their image),
+    ``n_not_applied``, ``not_applied_frames`` (steps whose ``steps/deformed`` is not the
+    image ``A x + b`` of the stored map up to rounding, `checks.applied_maps`),
+    ``n_started_dirty`` (steps whose start state already held intersections, kept as
+    they were), ``models`` and ``projections`` ({name: steps});
   - ``worst_steps``: up to 10 rows {``frame``, ``target``, ``k_1pct_baseline``,
     ``k_1pct_deformed``, ``k_any_baseline``, ``k_any_deformed``,
     ``hit_rate_baseline``, ``hit_rate_deformed``, ``k_1pct_gain``};
@@ -70,13 +78,15 @@ import numpy as np
 
 from .._version import __version__
 from ..formats._json import json_safe
+from .. import constants as K
 from ..constants import DEFAULT_CD_SHARE, DEFAULT_FRAME_MS
 from ..core.pipeline.ladder import model_ladder
 from ..core.trust.stats import R_HIST_EDGES, STARTS, TARGETS, compute_stats, stats_keys
 from ..core.trust.summary import PROJECTED_FORMULA, summarize
 from ..errors import InputError
 from ..formats.atomic import atomic_dir, check_output_dir
-from .checks import REGRESSION_FIGURES, certificate_summary, recheck_certificates
+from .baseline import read_baseline
+from .checks import applied_maps, certificate_summary, recheck_certificates
 from .markdown import render_markdown
 
 REPORT_SCHEMA = 1
@@ -116,6 +126,7 @@ def build_file_report(path, result, stats, *, ladder=None, cd_share=DEFAULT_CD_S
             h = np.asarray(stats[f"r_hist_{t}_{s}"], dtype=np.float64)
             hist[f"{t}_{s}"] = np.nansum(h, axis=0) if h.size else np.zeros(R_HIST_EDGES.size - 1)
     lad = None if ladder is None else {k: v for k, v in ladder.items() if k != "steps"}
+    applied = applied_maps(steps, result.groups, seq)
     return {
         "file": os.fspath(path),
         "name": os.path.basename(os.fspath(path)),
@@ -125,7 +136,8 @@ def build_file_report(path, result, stats, *, ladder=None, cd_share=DEFAULT_CD_S
         "deform_options": dict(result.attrs),
         "stats_source": stats_source,
         "summary": summarize(stats, steps, cd_share=cd_share, frame_ms=frame_ms),
-        "certificate": certificate_summary(steps, recheck_certificates(steps, result.groups), seq),
+        "certificate": certificate_summary(steps, recheck_certificates(steps, result.groups, seq, applied), seq,
+                                           applied=applied),
         "worst_steps": worst_steps(stats),
         "steps": per_step,
         "r_hist": hist,
@@ -141,7 +153,8 @@ def open_result(path):
     """Read a ``penfree deform`` output; InputError naming the file if it is not one.
 
     A damaged HDF5 file, or a result missing a dataset the report needs
-    (`REPORT_REQUIRES`), is a FormatError naming ``file:/dataset``.
+    (`REPORT_REQUIRES`), is a FormatError naming ``file:/dataset``; a result without
+    steps is an InputError (a report about nothing would claim too much).
     """
     from ..formats.result import is_result_file, read_result
 
@@ -151,7 +164,10 @@ def open_result(path):
     if not is_result_file(path):
         raise InputError(f"{path} is not a penfree deform output (no dataset steps/frame in {path}:/steps/frame); "
                          f"run `penfree deform {path} -o deformed.h5` and report on its output")
-    return read_result(path, require=REPORT_REQUIRES)
+    res = read_result(path, require=REPORT_REQUIRES)
+    if not res.n_steps:
+        raise InputError(f"{path} holds no steps to report (steps/frame is empty in {path}:/steps/frame)")
+    return res
 
 
 def select_steps(result, frames=None):
@@ -225,8 +241,20 @@ def stored_stats(result, replay=False):
     return stored_stats_checked(result, replay)[0]
 
 
+
+
+def _stats_differ(stored, computed) -> list:
+    """Keys of `stored` whose values differ from `computed` (NaN equals NaN)."""
+    out = []
+    for k, v in stored.items():
+        a, b = np.asarray(v, dtype=np.float64), np.asarray(computed.get(k), dtype=np.float64)
+        if a.shape != b.shape or not np.allclose(a, b, rtol=K.STORED_STATS_RTOL, atol=0.0, equal_nan=True):
+            out.append(k)
+    return out
+
+
 def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAULT_FRAME_MS, replay=False,
-                     ladder=True, progress=None, client=None) -> dict:
+                     ladder=True, progress=None, client=None, use_stored_stats=True) -> dict:
     """Statistics (read or computed), model ladder and the report entry of one result.
 
     Parameters
@@ -246,11 +274,22 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
     client : dict, optional
         Options of the real-client replay (`penfree.report.client.client_section`); its
         section is stored under ``client``.
+    use_stored_stats : bool
+        Take a usable ``stats/`` group as a cache. False (whenever a CI check is asked
+        for: a forged group must not pass it) computes the statistics from the positions
+        and deformed states, and notes a stored group that differs.
     """
     stats, note = stored_stats_checked(result, replay)
+    if note is not None:
+        note = f"stored statistics ignored and recomputed: {note}"
     source = "file"
-    if stats is None:
-        stats, source = compute_stats(result, replay=replay, progress=progress), "computed"
+    if stats is None or not use_stored_stats:
+        stored, stats, source = stats, compute_stats(result, replay=replay, progress=progress), "computed"
+        differ = [] if stored is None else _stats_differ(stored, stats)
+        if differ:
+            note = (f"stored statistics differ from those computed from the positions and steps/deformed "
+                    f"({', '.join(differ[:4])}{', ...' if len(differ) > 4 else ''} in {result.origin}:/stats); "
+                    f"the computed ones are used")
     lad = None
     if ladder:
         seq, steps = result.sequence, result.steps
@@ -264,7 +303,7 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
     rep = build_file_report(path, result, stats, ladder=lad, cd_share=cd_share, frame_ms=frame_ms,
                             stats_source=source)
     if note is not None:
-        rep["stats_note"] = f"stored statistics ignored and recomputed: {note}"
+        rep["stats_note"] = note
     if client:
         from .client import client_section
 
@@ -273,30 +312,9 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
 
 
 def load_report_json(path) -> dict:
-    """Read a stored report.json (e.g. a CI baseline); InputError if it is not one."""
-    path = os.fspath(path)
-    if os.path.isdir(path):
-        path = os.path.join(path, "report.json")
-    try:
-        with open(path, encoding="utf-8") as fh:
-            data = json.load(fh)
-    except (OSError, ValueError) as exc:
-        raise InputError(f"cannot read baseline report {path}: {exc}") from None
-    if not isinstance(data, dict) or data.get("penfree_report") != REPORT_SCHEMA or "files" not in data:
-        raise InputError(f"{path} is not a penfree report.json (expected penfree_report = {REPORT_SCHEMA})")
-    files = data["files"]
-    if not isinstance(files, list) or not all(isinstance(f, dict) for f in files):
-        raise InputError(f"{path}: files must be a list of objects in a penfree report.json")
-    for k, f in enumerate(files):
-        if not isinstance(f.get("name", ""), str) or not isinstance(f.get("summary", {}), dict):
-            raise InputError(f"{path}: files[{k}] needs a string name and an object summary")
-        for dotted, _ in REGRESSION_FIGURES:
-            d = f.get("summary", {})
-            for part in dotted.split("."):
-                d = d.get(part) if isinstance(d, dict) else None
-            if d is not None and (isinstance(d, bool) or not isinstance(d, (int, float))):
-                raise InputError(f"{path}: files[{k}].summary.{dotted} must be a number or null; got {d!r}")
-    return data
+    """Read a stored report.json (e.g. a CI baseline), validated for comparison
+    (`penfree.report.baseline.read_baseline`); InputError if it cannot serve."""
+    return read_baseline(path, REPORT_SCHEMA)
 
 
 #: The plots `penfree.report.plots.write_plots` names: ``<stem>_<kind>.png``.

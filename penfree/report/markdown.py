@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 from ..core.trust.summary import PROJECTED_FORMULA
+from .checks import entry_labels
 
 
 def _f(v, spec=".3g", suffix=""):
@@ -57,14 +58,15 @@ def _summary_rows(sm):
     return rows
 
 
-def _file_md(rep):
+def _file_md(rep, label):
     sc, sm, cert = rep["scene"], rep["summary"], rep["certificate"]
     p = sm["projected"]
-    out = [f"## {rep['name']}\n",
+    out = [f"## {label}\n",
            f"File `{rep['file']}`: {sc['kind']} scene, {sc['n_vertices']} vertices, {sc['n_frames']} frames, "
            f"{sc['n_steps']} steps ({sm['n_steps_next']} with a next frame), thickness {_f(sc['thickness'])}. "
-           f"Statistics {'read from the file' if rep['stats_source'] == 'file' else 'computed by this report'}"
-           + (f" ({rep['stats_note']})" if rep.get("stats_note") else "") + ".\n"]
+           f"Statistics {'read from the file' if rep['stats_source'] == 'file' else 'computed by this report'}.\n"]
+    if rep.get("stats_note"):
+        out.append(f"Note: {rep['stats_note']}.\n")
     opts = dict(rep.get("deform_options") or {})
     if isinstance(opts.get("options"), dict):  # deform's own options, one level down
         opts.update({f"options.{k}": v for k, v in opts.pop("options").items()})
@@ -80,6 +82,9 @@ def _file_md(rep):
     out.append(f"- minimum certificate margin: {_f(cert['min_margin'], '.6g')}\n"
                f"- all steps certified: {'yes' if cert['all_certified'] else 'NO'} "
                f"({cert['n_uncertified']} uncertified)\n"
+               + (f"- steps whose stored deformed state is not the image of the stored map: "
+                  f"{cert['n_not_applied']} (frames {cert['not_applied_frames'][:10]})\n"
+                  if cert.get("n_not_applied") else "") +
                f"- steps that started with pre-existing intersections (kept as they were): "
                f"{_f(cert.get('n_started_dirty'), 'd')}\n"
                f"- models: {', '.join(f'{k} x{v}' for k, v in cert['models'].items()) or 'n/a'}\n"
@@ -124,8 +129,8 @@ def render_markdown(doc) -> str:
            f"penfree {doc['penfree_version']}. Inputs: " + ", ".join(f"`{r['file']}`" for r in doc["files"]) + ". "
            f"Options: " + ", ".join(f"`{k}={v}`" for k, v in sorted(o.items())) + ".\n",
            f"Frame times and speedups are *projected*, not measured: {PROJECTED_FORMULA}.\n"]
-    for i, rep in enumerate(doc["files"]):
-        out.append(_file_md(rep))
+    for i, (rep, label) in enumerate(zip(doc["files"], entry_labels(doc["files"]))):
+        out.append(_file_md(rep, label))
         if rep.get("client"):
             from .client import client_markdown
 

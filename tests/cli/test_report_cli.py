@@ -263,3 +263,220 @@ def test_damaged_result_exit_2_names_file_and_dataset(cli, tmp_path, make, match
     r = cli("report", p, "-o", out, "--no-ladder", "--no-plots")
     assert r.exit_code == 2 and match.format(p=p) in r.stderr, r.output
     assert not out.exists()
+
+
+# ---------------------------------------------------------------- CI checks that must not pass falsely
+
+
+def _moved_vertex(f):
+    d = f["steps/deformed"][()]
+    d[2, 1, 0] += 1e-4  # far below the vertex spacing (0.1), far above the rounding
+    f["steps/deformed"][...] = d
+
+
+def _map_off_2pct(f):
+    A = f["steps/A"][()]
+    A[2] = A[2] @ np.diag([1.02, 0.98, 1.01])  # still a certified map, not the applied one
+    f["steps/A"][...] = A
+
+
+def _mirrored(f):
+    x = f["positions"][3]
+    c = x.mean(axis=0)
+    d = f["steps/deformed"][()]
+    d[2] = c + (x - c) * [1.0, 1.0, -1.0]  # penetrating path; steps/A still the certified translation
+    f["steps/deformed"][...] = d
+
+
+@pytest.mark.parametrize("change", [_moved_vertex, _map_off_2pct, _mirrored], ids=["moved-vertex", "map-off-2pct",
+                                                                                   "mirrored"])
+def test_fail_if_uncertified_checks_deformed_is_the_maps_image(cli, tmp_path, change):
+    p = _tampered(tmp_path / "forged.h5", change)
+    r = cli("report", p, "-o", tmp_path / "rep", "--no-ladder", "--no-plots", "--fail-if-uncertified")
+    assert r.exit_code == 1, r.output
+    assert "certified: NOT ALL" in r.output and "frames [3]" in r.output
+    assert "steps/deformed is not the image A x + b of the stored map at 1 step(s), frames [3]" in r.output
+    cert = json.loads((tmp_path / "rep" / "report.json").read_text())["files"][0]["certificate"]
+    assert (cert["n_uncertified"], cert["not_applied_frames"]) == (1, [3])
+
+
+def _baseline_of(cli, result, tmp_path, edit=None, raw=None):
+    assert cli("report", result, "-o", tmp_path / "base", "--no-ladder", "--no-plots").exit_code == 0
+    doc = json.loads((tmp_path / "base" / "report.json").read_text())
+    if edit is not None:
+        edit(doc)
+    p = tmp_path / "baseline.json"
+    p.write_text(raw(json.dumps(doc)) if raw is not None else json.dumps(doc))
+    return p
+
+
+def _set_summary(path, value):
+    def edit(doc):
+        d = doc["files"][0]["summary"]
+        keys = path.split(".")
+        for k in keys[:-1]:
+            d = d[k]
+        if value is KeyError:
+            del d[keys[-1]]
+        else:
+            d[keys[-1]] = value
+    return edit
+
+
+@pytest.mark.parametrize("edit, raw, expect", [
+    (_set_summary("deformed", 5), None, "files[0].summary.deformed must be an object; got 5"),
+    (_set_summary("deformed.k_1pct_next", KeyError), None, "files[0].summary.deformed.k_1pct_next must be"),
+    (lambda d: d["files"][0].pop("summary"), None, "files[0].summary must be an object"),
+    (None, lambda s: s.replace('"speedup": ', '"speedup": NaN, "was": ', 1),
+     "files[0].summary.projected.k_1pct.speedup is NaN"),
+    (_set_summary("projected.k_1pct.speedup", -5), None, "speedup must be null or a projected speedup in (0, 2]"),
+    (_set_summary("deformed.hit_rate_next", -3), None, "hit_rate_next must be null or a hit rate in [0, 1]"),
+    (_set_summary("deformed.k_1pct_next", 1e300), None, "k_1pct_next must be null or a mean CD-pass count"),
+], ids=["block-number", "key-missing", "no-summary", "nan", "speedup-negative", "hit-rate-negative", "k-1e300"])
+def test_baseline_that_cannot_be_compared_exits_2(cli, result, tmp_path, edit, raw, expect):
+    base = _baseline_of(cli, result, tmp_path, edit, raw)
+    out = tmp_path / "new"
+    r = cli("report", result, "-o", out, "--no-ladder", "--no-plots", "--baseline", base, "--max-regression", "5")
+    assert r.exit_code == 2 and f"baseline {base}: " in r.stderr and expect in r.stderr, r.output
+    assert not out.exists()
+
+
+def test_null_baseline_values_fail_the_regression_checks(cli, result, tmp_path):
+    def nulls(doc):
+        sm = doc["files"][0]["summary"]
+        sm["deformed"]["k_1pct_next"] = sm["deformed"]["hit_rate_next"] = None
+        sm["projected"]["k_1pct"]["speedup"] = None
+    base = _baseline_of(cli, result, tmp_path, nulls)
+    r = cli("report", result, "-o", tmp_path / "new", "--no-ladder", "--no-plots", "--baseline", base,
+            "--max-regression", "5")
+    assert r.exit_code == 1 and r.output.count("no baseline value") == 3, r.output
+    assert "not compared" not in r.output
+
+
+def test_same_base_name_is_matched_by_path(cli, tmp_path):
+    # The audit's reproducer: B/r.h5 regressed; A/r.h5's baseline entry must not stand in for it.
+    (tmp_path / "A").mkdir()
+    (tmp_path / "B").mkdir()
+    a, b = _result_file(tmp_path / "A" / "r.h5"), _result_file(tmp_path / "B" / "r.h5")
+    assert cli("report", a, b, "-o", tmp_path / "base", "--no-ladder", "--no-plots").exit_code == 0
+    doc = json.loads((tmp_path / "base" / "report.json").read_text())
+    assert doc["files"][1]["file"] == b
+    doc["files"][1]["summary"]["deformed"]["k_1pct_next"] /= 2  # B needed half the passes then
+    base = tmp_path / "base.json"
+    base.write_text(json.dumps(doc))
+    r = cli("report", a, b, "-o", tmp_path / "new", "--no-ladder", "--no-plots", "--baseline", base,
+            "--max-regression", "5")
+    assert r.exit_code == 1, r.output
+    failed = [c for c in json.loads((tmp_path / "new" / "report.json").read_text())["checks"] if not c["passed"]]
+    assert [(c["name"], c["file"]) for c in failed] == [("regression:deformed.k_1pct_next", b)]
+    md = (tmp_path / "new" / "report.md").read_text()
+    assert f"## {a}\n" in md and f"## {b}\n" in md
+
+
+def test_ambiguous_base_name_match_exits_2(cli, tmp_path):
+    for d in ("A", "B", "C"):
+        (tmp_path / d).mkdir()
+        _result_file(tmp_path / d / "r.h5")
+    a, b, c = (str(tmp_path / d / "r.h5") for d in ("A", "B", "C"))
+    assert cli("report", a, b, "-o", tmp_path / "base", "--no-ladder", "--no-plots").exit_code == 0
+    out = tmp_path / "new"
+    r = cli("report", c, a, "-o", out, "--no-ladder", "--no-plots", "--baseline", tmp_path / "base",
+            "--max-regression", "5")
+    # A/r.h5's entry is A's by path: C/r.h5 may take B's by base name, the only one left
+    assert r.exit_code == 0, r.output
+    r = cli("report", c, "-o", tmp_path / "new2", "--no-ladder", "--no-plots", "--baseline", tmp_path / "base",
+            "--max-regression", "5")
+    assert r.exit_code == 2 and f"{c} matches no entry by path and two by base name r.h5: {a} and {b}" in r.stderr
+    assert not (tmp_path / "new2").exists()
+
+
+def test_baseline_from_another_run_is_warned_about(cli, result, tmp_path):
+    def other(doc):
+        doc["penfree_version"] = "0.0.1-other"
+        doc["options"]["cd_share"] = 0.9
+        doc["files"][0]["file"] = "x/something_else.h5"
+    base = _baseline_of(cli, result, tmp_path, other)
+    r = cli("report", result, "-o", tmp_path / "new", "--no-ladder", "--no-plots", "--baseline", base,
+            "--max-regression", "5")
+    assert r.exit_code == 0, r.output
+    lines = r.stderr.splitlines()
+    assert len(lines) == 2 and all(line.startswith("penfree: warning: baseline ") for line in lines)
+    assert "penfree_version 0.0.1-other" in lines[0] and "option cd_share 0.9 (now 0.5)" in lines[0]
+    assert f"file x/something_else.h5 (now {result})" in lines[1]
+
+
+def _forged_stats(path):
+    import h5py
+
+    from penfree.core.trust.stats import compute_stats
+    from penfree.report.build import open_result
+
+    _result_file(path)
+    stats = compute_stats(open_result(path))
+    with h5py.File(path, "a") as f:
+        for k, v in stats.items():
+            f[f"stats/{k}"] = v
+        for k in ("k_1pct_next_deformed", "k_any_next_deformed", "hit_rate_next_deformed"):
+            f[f"stats/{k}"][:4] = 1.0  # forged: one CD pass, every vertex a hit
+    return str(path)
+
+
+def test_ci_checks_compute_statistics_instead_of_trusting_stats(cli, tmp_path):
+    p = _forged_stats(tmp_path / "forged.h5")
+    r = cli("report", p, "-o", tmp_path / "cache", "--no-ladder", "--no-plots", "--json")
+    assert json.loads(r.output)["files"][0]["stats_source"] == "file"  # no check: the group is a cache
+    out = tmp_path / "rep"
+    r = cli("report", p, "-o", out, "--no-ladder", "--no-plots", "--min-speedup", "1.3")
+    assert r.exit_code == 1 and "projected speedup 1.19" in r.output, r.output  # forged: 1.49
+    f = json.loads((out / "report.json").read_text())["files"][0]
+    assert f["stats_source"] == "computed"
+    assert "stored statistics differ from those computed" in f["stats_note"]
+    assert sum(line.startswith("Note: stored statistics differ") for line in (out / "report.md").read_text()
+               .splitlines()) == 1
+
+
+def test_threshold_message_shows_the_difference(cli, result, tmp_path):
+    # f = 0.45 gives a speedup of 1.167883...: at 3 decimals "1.168", above a minimum of 1.16789
+    # that it fails ("projected speedup 1.168 (minimum 1.16789)" read as a pass)
+    opts = ["--no-ladder", "--no-plots", "--cd-share", "0.45"]
+    r = cli("report", result, "-o", tmp_path / "rep", *opts, "--json")
+    v = json.loads(r.output)["files"][0]["summary"]["projected"]["k_1pct"]["speedup"]
+    limit = math.ceil(v * 1e5) / 1e5
+    assert v < limit < float(f"{v:.3f}")
+    r = cli("report", result, "-o", tmp_path / "rep2", *opts, "--min-speedup", str(limit))
+    assert r.exit_code == 1
+    msg = json.loads((tmp_path / "rep2" / "report.json").read_text())["checks"][0]["message"]
+    shown, minimum = msg.removeprefix("projected speedup ").removesuffix(")").split(" (minimum ")
+    assert float(shown) < float(minimum) and float(minimum) == limit, msg
+    assert len(shown.replace(".", "")) >= 6 and f"{msg}" in r.output
+
+
+def test_zero_step_result_exits_2(cli, tmp_path):
+    from penfree.formats.result import write_result
+
+    x0 = np.array([[0.0, 0, 0], [0.1, 0, 0], [0.2, 0, 0]])
+    seq = Sequence(positions=np.stack([x0, x0 + [0.01, 0, 0]]), edges=np.array([[0, 1], [1, 2]])).validate()
+    steps = {"frame": np.zeros(0, dtype=np.int64), "A": np.zeros((0, 3, 3)), "b": np.zeros((0, 3)),
+             "deformed": np.zeros((0, 3, 3)), "model": np.array([], dtype=str),
+             "projection": np.array([], dtype=str), "certificate_margin": np.zeros(0)}
+    f = tmp_path / "empty.h5"
+    write_result(f, seq, steps, {})
+    out = tmp_path / "rep"
+    r = cli("report", f, "-o", out, "--no-ladder", "--fail-if-uncertified")
+    assert r.exit_code == 2 and f"{f} holds no steps to report" in r.stderr, r.output
+    assert "certified" not in r.stdout and not out.exists()
+
+
+def test_help_shows_no_empty_range(cli):
+    r = cli("report", "--help")
+    assert r.exit_code == 0 and "None" not in r.output
+    assert "--min-speedup X" in r.output and "--min-hit-rate-gain POINTS" in r.output
+
+
+@pytest.mark.parametrize("opt", [["--truncation", "planar"], ["--radius", "own"], ["--dhat", "0.1"],
+                                 ["--every", "2"]], ids=["truncation", "radius", "dhat", "every"])
+def test_client_options_without_client_exit_2(cli, result, tmp_path, opt):
+    out = tmp_path / "rep"
+    r = cli("report", result, "-o", out, "--no-ladder", *opt)
+    assert r.exit_code == 2 and f"{opt[0]} applies only to the real-client replay" in r.stderr, r.output
+    assert not out.exists()

@@ -309,3 +309,36 @@ def test_plots_penfree_wrote_are_still_replaced(tmp_path):
         (out / n).write_bytes(PNG_MAGIC)
     write_report(out, [rep], overwrite=True, plots=False)
     assert sorted(os.listdir(out)) == ["report.json", "report.md"]
+
+
+# ---------------------------------------------------------------- CI: statistics computed, not read
+
+
+def test_stats_computed_for_checks_and_a_differing_group_noted(tmp_path):
+    import h5py
+
+    p = write_tiny_result(tmp_path / "r.h5", with_stats=True)
+    honest = make_file_report("r.h5", open_result(p), ladder=False, use_stored_stats=False)
+    assert honest["stats_source"] == "computed" and "stats_note" not in honest  # the same numbers: no note
+    with h5py.File(p, "a") as f:
+        f["stats/k_1pct_next_deformed"][...] = 1.0
+    res = open_result(p)
+    cached = make_file_report("r.h5", res, ladder=False)
+    assert cached["stats_source"] == "file"
+    rep = make_file_report("r.h5", res, ladder=False, use_stored_stats=False)
+    assert rep["stats_source"] == "computed" and rep["summary"] == honest["summary"]
+    assert rep["stats_note"].startswith("stored statistics differ from those computed from the positions")
+    assert f"(k_1pct_next_deformed in {p}:/stats)" in rep["stats_note"]
+
+
+def test_result_without_steps_is_refused(tmp_path):
+    import h5py
+
+    p = write_tiny_result(tmp_path / "r.h5")
+    with h5py.File(p, "a") as f:
+        for k in list(f["steps"]):
+            data = f[f"steps/{k}"][()]
+            del f[f"steps/{k}"]
+            f[f"steps/{k}"] = data[:0]
+    with pytest.raises(InputError, match=rf"{p} holds no steps to report \(steps/frame is empty in {p}:/steps/frame\)"):
+        open_result(p)

@@ -1,9 +1,15 @@
-"""CI checks: certificate summary, thresholds, regression against a baseline report."""
+"""CI checks: certificate summary, thresholds, regression against a baseline report, and the
+re-check that every stored deformed state is the image of its certified map."""
+
+import dataclasses
 
 import numpy as np
 import pytest
+from _samples import SAMPLES
 
-from penfree.report.checks import certificate_summary, run_checks
+import penfree.report.checks as checks_mod
+from penfree.report.checks import applied_maps, certificate_summary, recheck_certificates, run_checks
+from penfree.sequence import Sequence
 
 
 def test_certificate_summary():
@@ -55,3 +61,190 @@ def test_regression_checks():
     assert all(c["passed"] for c in run_checks([_rep(name="b.h5")], baseline=base, max_regression=0.0))
     two = run_checks([_rep(name="b.h5"), _rep(name="a.h5")], baseline=base, max_regression=0.0)
     assert [c["passed"] for c in two if c["file"] == "b.h5"] == [False]
+
+
+# ---------------------------------------------------------------- the stored deformed state is the map's image
+
+#: Offset of the far-from-origin variants (SPEC: coordinates well away from the origin are common).
+FAR = 1.0e4
+#: Frames of a sample deformed by these tests (steps 1..5): small and quick.
+SAMPLE_FRAMES = 6
+
+
+def _deformed_sample(tmp_path, name, model, variant):
+    """A real deform output of the first frames of `samples/<name>.h5`, written and read back."""
+    from penfree.core.pipeline.deform import deform_sequence, result_attrs
+    from penfree.formats import read_sequence
+    from penfree.formats.result import write_result
+    from penfree.report.build import open_result
+
+    seq0 = read_sequence(str(SAMPLES / f"{name}.h5"))
+    pos = np.asarray(seq0.positions[:SAMPLE_FRAMES])
+    if variant == "f64-far":
+        pos = pos.astype(np.float64) + FAR
+    elif variant == "f32-far":
+        pos = (pos.astype(np.float64) + FAR).astype(np.float32)
+    seq = dataclasses.replace(seq0, positions=pos).validate()
+    out = deform_sequence(seq, model=model)
+    path = tmp_path / f"{name}-{model}-{variant}.h5"
+    write_result(path, seq, out.steps, result_attrs(str(path), out.options), groups=out.groups)
+    return open_result(path)
+
+
+GENUINE = [(name, model) for name, models in (
+    ("rods", ("translation", "rigid", "similarity", "affine", "auto")),
+    ("cloth", ("affine", "auto")),
+    ("carried_stack", ("per-component", "auto")),
+) for model in models]
+
+
+@pytest.mark.parametrize("variant", ["f32", "f64-far", "f32-far"])
+@pytest.mark.parametrize("name, model", GENUINE, ids=[f"{n}-{m}" for n, m in GENUINE])
+def test_genuine_deform_outputs_are_certified_images(tmp_path, name, model, variant):
+    res = _deformed_sample(tmp_path, name, model, variant)
+    assert res.steps["deformed"].dtype == res.sequence.dtype
+    assert applied_maps(res.steps, res.groups, res.sequence).all()
+    assert recheck_certificates(res.steps, res.groups, res.sequence).all()
+    if model == "per-component" and variant != "f32-far":  # the per-component path is exercised
+        assert np.isnan(res.steps["A"]).all(axis=(1, 2)).any()
+
+
+@pytest.mark.parametrize("dtype, offset", [(np.float32, 0.0), (np.float32, FAR), (np.float64, FAR)],
+                         ids=["f32", "f32-far", "f64-far"])
+def test_shortened_steps_are_images_of_their_maps(rng, dtype, offset):
+    # deform's shortened steps scale an already rounded x_def (strategy.shortened)
+    from penfree.constants import SHORTEN_LEVELS
+    from penfree.core.fit.step import fit_step
+    from penfree.core.pipeline.strategy import StepInput, from_step_result, shortened
+
+    x_prev = (rng.normal(size=(300, 3)) + offset).astype(dtype)
+    R = np.array([[0.998, -0.05, 0.0], [0.05, 0.998, 0.0], [0.0, 0.0, 1.01]])
+    c = x_prev.astype(np.float64).mean(axis=0)
+    x = ((x_prev.astype(np.float64) - c) @ R.T + c + 0.01).astype(dtype)
+    r = fit_step(x_prev, x, model="affine")
+    x64 = x.astype(np.float64)
+    step = StepInput(1, x_prev, x, x64, 2 * x64 - x_prev, 0.0, 0.0, None)
+    seq = Sequence(positions=np.stack([x_prev, x]), edges=np.array([[0, 1]])).validate()
+    outs = [from_step_result(r)] + [shortened(from_step_result(r), step, a) for a in SHORTEN_LEVELS]
+    steps = {"frame": np.ones(len(outs), dtype=np.int64), "A": np.stack([o.A for o in outs]),
+             "b": np.stack([o.b for o in outs]), "deformed": np.stack([o.x_def for o in outs])}
+    assert applied_maps(steps, None, seq).all()
+
+
+@pytest.mark.parametrize("dtype, offset", [(np.float32, 0.0), (np.float64, FAR), (np.float32, 1e-30)],
+                         ids=["f32", "f64-far", "f32-tiny"])
+def test_apply_map_output_passes_and_more_than_rounding_fails(rng, dtype, offset):
+    # x_def exactly as deform forms it (apply_map: x + D (x - c) + u, float64, cast), random
+    # maps; one coordinate moved by 16 float32 ulps / 1024 float64 ulps (1e-13 relative:
+    # the float64 bound is about 100 ulps far from the origin) is caught
+    from penfree.core.fit.models import apply_map
+
+    for _ in range(20):
+        x = ((rng.normal(size=(200, 3)) + rng.normal(size=3) * 10) * (1e-30 if offset == 1e-30 else 1.0)
+             + (0.0 if offset == 1e-30 else offset)).astype(dtype)
+        D = 0.1 * rng.normal(size=(3, 3))
+        u = 0.05 * rng.normal(size=3) * np.abs(x).max()
+        c = x.astype(np.float64).mean(axis=0)
+        x_def, _ = apply_map(x, D, u, c)
+        A = np.eye(3) + D
+        steps = {"frame": np.array([1]), "A": A[None], "b": (u - D @ c)[None], "deformed": x_def[None]}
+        seq = Sequence(positions=np.stack([x, x])).validate()
+        assert applied_maps(steps, None, seq).all()
+        bad = x_def.copy()
+        bad[7, 1] += (16 if dtype == np.float32 else 1024) * np.spacing(np.abs(bad[7, 1]))
+        assert not applied_maps({**steps, "deformed": bad[None]}, None, seq).any()
+
+
+def _step_with_spacing(res):
+    """(k, spacing): a step that moves, and the smallest edge length of its start state."""
+    seq = res.sequence
+    k = int(np.flatnonzero(np.asarray(res.steps["model"]) != "none")[0])
+    x = np.asarray(seq.positions[res.steps["frame"][k]], dtype=np.float64)
+    E = seq.edges if seq.edges is not None else np.concatenate([seq.faces[:, [0, 1]], seq.faces[:, [1, 2]]])
+    return k, float(np.linalg.norm(x[E[:, 0]] - x[E[:, 1]], axis=1).min())
+
+
+@pytest.mark.parametrize("variant", ["f32", "f64-far"])
+@pytest.mark.parametrize("name, model", [("rods", "affine"), ("cloth", "auto"), ("carried_stack", "per-component")],
+                         ids=["rods-affine", "cloth-auto", "stack-per-component"])
+def test_deformed_moved_below_the_spacing_is_not_certified(tmp_path, name, model, variant):
+    res = _deformed_sample(tmp_path, name, model, variant)
+    k, spacing = _step_with_spacing(res)
+    d = res.steps["deformed"].copy()
+    v = int(np.argmax(np.abs(d[k, :, 0])))
+    eps = 1e-2 * spacing  # far below a vertex spacing ...
+    assert eps > 64 * np.spacing(np.abs(d[k, v, 0]))  # ... far above the rounding
+    d[k, v, 0] += eps
+    ok = applied_maps({**res.steps, "deformed": d}, res.groups, res.sequence)
+    assert not ok[k] and ok.sum() == ok.size - 1
+    assert not recheck_certificates({**res.steps, "deformed": d}, res.groups, res.sequence)[k]
+
+
+@pytest.mark.parametrize("variant", ["f32", "f64-far"])
+def test_map_altered_by_two_percent_is_not_certified(tmp_path, variant):
+    res = _deformed_sample(tmp_path, "rods", "affine", variant)
+    k, _ = _step_with_spacing(res)
+    A = res.steps["A"].copy()
+    A[k] = A[k] @ np.diag([1.02, 0.98, 1.01])  # still a certified map, no longer the applied one
+    from penfree.core.fit.certificate import certify_map
+
+    assert certify_map(A[k], float(res.steps["margin_required"][k]))
+    rc = recheck_certificates({**res.steps, "A": A}, res.groups, res.sequence)
+    assert not rc[k] and rc.sum() == rc.size - 1
+
+
+def test_mirrored_deformed_state_with_the_map_kept_is_not_certified(tmp_path):
+    # the audit's reproducer: a penetrating deformed state under a certified map
+    res = _deformed_sample(tmp_path, "rods", "affine", "f32")
+    k, _ = _step_with_spacing(res)
+    x = np.asarray(res.sequence.positions[res.steps["frame"][k]], dtype=np.float64)
+    c = x.mean(axis=0)
+    d = res.steps["deformed"].copy()
+    d[k] = (c + (x - c) * [1.0, 1.0, -1.0]).astype(d.dtype)
+    assert not recheck_certificates({**res.steps, "deformed": d}, res.groups, res.sequence)[k]
+
+
+def _per_component_step(res):
+    k = int(np.flatnonzero(np.isnan(res.steps["A"]).all(axis=(1, 2)))[0])
+    comp = res.groups["component_maps"]
+    labels = np.asarray(comp["labels"])
+    return k, comp, labels
+
+
+@pytest.mark.parametrize("forge", ["map-2pct", "b-shifted", "labels-swapped", "labels-missing", "maps-missing",
+                                   "identity-maps"])
+def test_forged_component_maps_are_not_certified(tmp_path, forge):
+    res = _deformed_sample(tmp_path, "carried_stack", "per-component", "f32")
+    k, comp, labels = _per_component_step(res)
+    comp = {key: np.array(v, copy=True) for key, v in comp.items()}
+    moved = [c for c in np.unique(labels) if not np.allclose(comp["A"][k, c], np.eye(3))
+             or np.abs(comp["b"][k, c]).max() > 0]
+    c = int(moved[0])
+    if forge == "map-2pct":
+        comp["A"][k, c] = comp["A"][k, c] @ np.diag([1.02, 0.98, 1.01])
+    elif forge == "b-shifted":
+        comp["b"][k, c] += 1e-4
+    elif forge == "labels-swapped":  # every vertex judged by another component's map
+        comp["labels"] = (labels + 1) % (labels.max() + 1)
+    elif forge == "labels-missing":  # deform's own labels are used: still the image
+        del comp["labels"]
+    elif forge == "maps-missing":
+        del comp["A"]
+    else:  # certified identity maps claimed for a moved state (the audit's forgery)
+        comp["A"][k] = np.eye(3)
+        comp["b"][k] = 0.0
+    groups = {**res.groups, "component_maps": comp}
+    rc = recheck_certificates(res.steps, groups, res.sequence)
+    assert rc[k] == (forge == "labels-missing")
+
+
+def test_applied_check_runs_in_blocks(tmp_path, monkeypatch):
+    # memory stays bounded for large scenes: the blockwise check gives the same verdicts
+    res = _deformed_sample(tmp_path, "carried_stack", "per-component", "f32")
+    d = res.steps["deformed"].copy()
+    d[-1, 500, 2] += 1e-4
+    steps = {**res.steps, "deformed": d}
+    whole = applied_maps(steps, res.groups, res.sequence)
+    monkeypatch.setattr(checks_mod, "APPLIED_BLOCK_ROWS", 7)
+    assert np.array_equal(applied_maps(steps, res.groups, res.sequence), whole)
+    assert whole[:-1].all() and not whole[-1]
