@@ -255,7 +255,7 @@ def _read_group(g, where, skip_deformed=False) -> dict:
     return out
 
 
-def _read_deformed(ds, where) -> np.ndarray:
+def _read_deformed(ds, where, frame=None) -> np.ndarray:
     dt = np.dtype(ds.dtype)
     if dt.kind != "f" or ds.ndim != 3:
         raise FormatError(f"steps/deformed must be (S, N, 3) float; got {ds.shape} {dt} in {where}:/steps/deformed")
@@ -263,7 +263,8 @@ def _read_deformed(ds, where) -> np.ndarray:
     for k in range(ds.shape[0]):
         out[k] = ds[k]
         if not np.isfinite(out[k]).all():
-            raise FormatError(f"steps/deformed must be finite; step {k} holds NaN or Inf in {where}:/steps/deformed")
+            at = f" (frame {int(frame[k])})" if frame is not None and k < np.size(frame) else ""
+            raise FormatError(f"steps/deformed must be finite; step {k}{at} holds NaN or Inf in {where}:/steps/deformed")
     return out
 
 
@@ -299,7 +300,9 @@ def read_result(path, require=()) -> DeformResult:
         seq.validate()
         steps = _read_group(g, where, skip_deformed=True)
         if "deformed" in g:
-            steps["deformed"] = _read_deformed(g["deformed"], where)
+            frame = steps.get("frame")
+            usable = frame is not None and np.ndim(frame) == 1 and np.asarray(frame).dtype.kind in "iu"
+            steps["deformed"] = _read_deformed(g["deformed"], where, frame if usable else None)
         attrs = read_attrs(f, where)
         groups = {k: _read_group(obj, where) for k, obj in f.items()
                   if isinstance(obj, h5py.Group) and k not in SEQUENCE_NAMES}

@@ -94,7 +94,7 @@ def _tamper(path, name, value):
     ("steps/b", np.zeros((3, 3)), "steps/b must be (4, 3); got (3, 3) in {p}:/steps/b"),
     ("steps/deformed", np.zeros((4, 5, 3)), "steps/deformed must be (4, 6, 3); got (4, 5, 3) in {p}:/steps/deformed"),
     ("steps/deformed", np.where(np.arange(72).reshape(4, 6, 3) == 40, np.nan, 0.0),
-     "step 2 holds NaN or Inf in {p}:/steps/deformed"),
+     "step 2 (frame 3) holds NaN or Inf in {p}:/steps/deformed"),
     ("steps/rank", np.zeros(7), "steps/rank must have one row per step (4)"),
 ], ids=["frame-too-big", "frame-zero", "A-shape", "b-rows", "deformed-vertices", "deformed-nan", "short-column"])
 def test_read_validates(tmp_path, rng, name, value, expect):
