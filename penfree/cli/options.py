@@ -62,6 +62,10 @@ class FiniteFloat(click.FloatRange):
             self.fail(f"{value} is not a finite number", param, ctx)
         return v
 
+    def _describe_range(self):
+        # Without bounds click's help would read "x<=None": any finite number is all it asks.
+        return "" if self.min is None and self.max is None else super()._describe_range()
+
 
 #: A distance option: in the range a file's distance attributes are held to (`penfree.sequence.SCALE_MAX`).
 DISTANCE = FiniteFloat(min=0.0, max=SCALE_MAX)

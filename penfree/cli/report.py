@@ -1,6 +1,5 @@
 """``penfree report FILE... -o DIR``: Markdown + JSON (+ PNG) report and CI checks."""
 
-import math
 import os
 
 import click
@@ -14,21 +13,6 @@ from .options import (
     set_threads,
     threads_option,
 )
-
-
-class Threshold(click.ParamType):
-    """A CI threshold: any finite number (no range of its own; NaN and infinities are refused)."""
-
-    name = "float"
-
-    def convert(self, value, param, ctx):
-        try:
-            v = float(value)
-        except (TypeError, ValueError):
-            self.fail(f"{value!r} is not a number", param, ctx)
-        if not math.isfinite(v):
-            self.fail(f"{value} is not a finite number", param, ctx)
-        return v
 
 
 #: Options that only the real-client replay reads: (parameter name, option).
@@ -63,9 +47,9 @@ CLIENT_ONLY = (("truncation", "--truncation"), ("radius_rule", "--radius"), ("dh
 @json_option
 @click.option("--fail-if-uncertified", is_flag=True,
               help="Check: every step's map is certified and its stored deformed state is that map's image.")
-@click.option("--min-speedup", type=Threshold(), default=None, metavar="X",
+@click.option("--min-speedup", type=FiniteFloat(), default=None, metavar="X",
               help="Check: projected speedup (K_1pct rule) >= X (a finite number).")
-@click.option("--min-hit-rate-gain", type=Threshold(), default=None, metavar="POINTS",
+@click.option("--min-hit-rate-gain", type=FiniteFloat(), default=None, metavar="POINTS",
               help="Check: hit rate vs the next frame gains >= POINTS percentage points (deformed - baseline; "
               "a finite number, negative allows a loss).")
 @click.option("--baseline", "baseline_path", type=click.Path(), default=None, metavar="REPORT.json",

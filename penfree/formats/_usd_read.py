@@ -67,8 +67,8 @@ def _skinned_points(scan, prim, query, times, UsdGeom):
         raise InputError(f"skinned prim with blend shapes in {scan.where(prim)}; expected skinning without blend "
                          f"shapes (bake it into time-sampled points first, e.g. with UsdSkel.BakeSkinning)")
     skel = UsdSkel.BindingAPI(prim).GetInheritedSkeleton()
-    skel_query = scan.skel_cache.GetSkelQuery(skel)
-    if not skel or not skel_query:
+    skel_query = scan.skel_cache.GetSkelQuery(skel) if skel else None
+    if not skel_query:
         raise InputError(f"skinned prim without a usable skeleton in {scan.where(prim)}; expected skel:skeleton to "
                          f"name a Skeleton under the same SkelRoot")
     attr = prim.GetAttribute("points")
@@ -232,16 +232,14 @@ def _analytic_size(scan, prim, kind, t):
             value = float(raw)
         except (TypeError, ValueError):
             value = float("nan")
-        lowest = 0.0 if name in ("height", "radiusTop", "radiusBottom") else np.nextafter(0.0, 1.0)
-        if not (np.isfinite(value) and value >= lowest):
-            need = ">= 0" if lowest == 0.0 else "> 0"
-            raise InputError(f"{kind} {name} must be a finite number {need}; got {raw!r} at time code {t:g} in "
-                             f"{scan.where(prim)}")
+        # A capsule of height 0 is a ball and one end of a frustum may be a point; nothing else may vanish.
+        positive = name in ("size", "radius") or (name == "height" and not kind.startswith("Capsule"))
+        if not (np.isfinite(value) and (value > 0.0 if positive else value >= 0.0)):
+            raise InputError(f"{kind} {name} must be a finite number {'> 0' if positive else '>= 0'}; got {raw!r} "
+                             f"at time code {t:g} in {scan.where(prim)}")
         values.append(value)
-    if kind in ("Capsule_1", "Cylinder_1", "Cone", "Cylinder") and max(values[:-1]) == 0.0:
-        raise InputError(f"{kind} radii are all 0 at time code {t:g} in {scan.where(prim)}; expected a solid")
-    if kind in ("Cylinder", "Cylinder_1", "Cone") and values[-1] == 0.0:
-        raise InputError(f"{kind} height must be > 0; got 0 at time code {t:g} in {scan.where(prim)}")
+    if kind in ("Capsule_1", "Cylinder_1") and values[0] == values[1] == 0.0:  # radiusBottom, radiusTop
+        raise InputError(f"{kind} radii are both 0 at time code {t:g} in {scan.where(prim)}; expected a solid")
     axis = prim.GetAttribute("axis")
     return (*values, str(axis.Get(t)) if axis.IsValid() and axis.Get(t) else "Z")
 

@@ -241,8 +241,6 @@ def stored_stats(result, replay=False):
     return stored_stats_checked(result, replay)[0]
 
 
-
-
 def _stats_differ(stored, computed) -> list:
     """Keys of `stored` whose values differ from `computed` (NaN equals NaN)."""
     out = []

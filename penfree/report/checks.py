@@ -160,10 +160,9 @@ def recheck_certificates(steps, groups=None, seq=None, applied=None) -> np.ndarr
     A = np.asarray(steps["A"], dtype=np.float64)
     S = A.shape[0]
     req = np.asarray(steps.get("margin_required", np.zeros(S)), dtype=np.float64).reshape(-1)
-    comp = (groups or {}).get("component_maps")
-    comp_A = np.asarray(comp["A"], dtype=np.float64) if isinstance(comp, dict) and "A" in comp else None
-    if comp_A is not None and (comp_A.ndim != 4 or comp_A.shape[0] != S or comp_A.shape[2:] != (3, 3)):
-        comp_A = None
+    # Without `seq` no step is certified (its deformed state cannot be checked): no maps needed.
+    comp = None if seq is None else _component_arrays(groups, S, seq.n_vertices, seq)
+    comp_A = None if comp is None else comp[0]
     ok = np.zeros(S, dtype=bool)
     for k in range(S):
         m = req[k] if req.size == S else np.nan

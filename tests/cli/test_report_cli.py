@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from _report_docs import set_in_entry
 
 from penfree.constants import DEFAULT_GAMMA
 from penfree.sequence import Sequence
@@ -311,16 +312,7 @@ def _baseline_of(cli, result, tmp_path, edit=None, raw=None):
 
 
 def _set_summary(path, value):
-    def edit(doc):
-        d = doc["files"][0]["summary"]
-        keys = path.split(".")
-        for k in keys[:-1]:
-            d = d[k]
-        if value is KeyError:
-            del d[keys[-1]]
-        else:
-            d[keys[-1]] = value
-    return edit
+    return lambda doc: set_in_entry(doc, f"summary.{path}", value)
 
 
 @pytest.mark.parametrize("edit, raw, expect", [

@@ -4,6 +4,7 @@ import copy
 import json
 
 import pytest
+from _report_docs import set_in_entry
 
 from penfree._version import __version__
 from penfree.errors import InputError
@@ -38,17 +39,6 @@ def test_a_report_json_reads_back(tmp_path):
     assert read_baseline(_write(tmp_path, _doc()), REPORT_SCHEMA)["files"][0]["name"] == "r.h5"
 
 
-def _set(doc, dotted, value):
-    d = doc["files"][0]
-    parts = dotted.split(".")
-    for p in parts[:-1]:
-        d = d[p]
-    if value is KeyError:
-        del d[parts[-1]]
-    else:
-        d[parts[-1]] = value
-
-
 @pytest.mark.parametrize("dotted, value, expect", [
     ("summary", KeyError, "files[0].summary must be an object; got nothing (missing)"),
     ("summary.deformed", KeyError, "files[0].summary.deformed must be an object; got nothing (missing)"),
@@ -74,7 +64,7 @@ def _set(doc, dotted, value):
         "hit-negative", "hit-above-1", "cd-share", "name-int", "file-missing"])
 def test_malformed_baseline_is_an_input_error_naming_file_and_key(tmp_path, dotted, value, expect):
     doc = _doc()
-    _set(doc, dotted, value)
+    set_in_entry(doc, dotted, value)
     p = _write(tmp_path, doc)
     with pytest.raises(InputError) as exc:
         read_baseline(p, REPORT_SCHEMA)
