@@ -368,3 +368,117 @@ def test_stored_frames_read_any_layout_frame_by_frame(tmp_path, chunks):
             np.testing.assert_array_equal(frames.frame(t), x[t])
         with pytest.raises(InputError, match=r"frame 9 holds NaN or Inf in f.h5:/positions"):
             frames.frame(9)
+
+
+def _no_dask(monkeypatch):
+    real_import = builtins.__import__
+
+    def no_dask(name, *args, **kw):
+        if name == "distributed" or name.startswith("dask"):
+            raise ImportError(f"No module named {name!r}")
+        return real_import(name, *args, **kw)
+
+    monkeypatch.setattr(builtins, "__import__", no_dask)
+
+
+def _spy_windows(monkeypatch):
+    """Every frame window the HDF5 positions reader is asked for (None: the whole file)."""
+    import penfree.formats.hdf5 as hdf5
+
+    windows, real = [], hdf5.read_positions
+    monkeypatch.setattr(hdf5, "read_positions", lambda ds, where, name="positions", window=None:
+                        windows.append((name, window)) or real(ds, where, name, window))
+    return windows
+
+
+@pytest.mark.parametrize("extra", [[], ["--frames", "3:11", "--stats"]], ids=["all", "frames-stats"])
+def test_serial_deform_of_a_long_file_goes_in_ranges_without_dask(tmp_path, monkeypatch, extra):
+    """A serial ``deform`` of a file whose frames exceed `MAX_TASK_BYTES` runs its frame
+    ranges one after another in this process (`cluster.InProcess`, no Dask), each reading
+    only its frames (it read the whole recording, however long); the result equals a run
+    that reads the file whole, the summary likewise."""
+    import json
+    import sys
+
+    path = _cloth_over_a_rising_plate(tmp_path / "in.h5")
+    runner = CliRunner()
+    whole = runner.invoke(main, ["deform", path, "-o", str(tmp_path / "whole.h5"), "--json", *extra])
+    assert whole.exit_code == 0, whole.output
+    monkeypatch.setattr(sys.modules["penfree.scaleout.plan"], "MAX_TASK_BYTES", 2000)  # 12 frames x 384 bytes
+    _no_dask(monkeypatch)
+    windows = _spy_windows(monkeypatch)
+    r = runner.invoke(main, ["deform", path, "-o", str(tmp_path / "ranges.h5"), "--json", *extra])
+    assert r.exit_code == 0, r.output
+    assert windows and all(w is not None and min(w[1], 12) - w[0] <= 7 for _, w in windows), windows
+    assert_same_result(tmp_path / "ranges.h5", tmp_path / "whole.h5")
+    a, b = json.loads(r.output), json.loads(whole.output)
+    for k in ("wall_time_s", "frames_per_s", "mean_time_fit_ms", "output"):
+        a.pop(k), b.pop(k)
+    assert a == b
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.h5", "ranges.h5", "whole.h5"]
+
+
+@pytest.mark.parametrize("what", ["result", "sequence", "violating result"])
+def test_serial_verify_of_a_long_file_goes_in_ranges_without_dask(tmp_path, monkeypatch, what):
+    """A serial ``verify`` of a long result or raw sequence reads it a frame range at a time
+    (`result.read_result` / `read_sequence` with a window) and prints the report of a
+    whole read, frame numbers and exit code included (a violation in the second range)."""
+    import json
+    import sys
+
+    path = _cloth_over_a_rising_plate(tmp_path / "in.h5")
+    runner = CliRunner()
+    target = path
+    if what != "sequence":
+        target = str(tmp_path / "out.h5")
+        assert runner.invoke(main, ["deform", path, "-o", target]).exit_code == 0
+        if what == "violating result":  # step of frame 9: a vertex pushed through the plate
+            with h5py.File(target, "r+") as f:
+                k = int(np.flatnonzero(f["steps/frame"][()] == 9)[0])
+                d = f["steps/deformed"][k]
+                d[5, 2] = -1.0
+                f["steps/deformed"][k] = d
+    whole = runner.invoke(main, ["verify", target, "--json"])
+    monkeypatch.setattr(sys.modules["penfree.scaleout.plan"], "MAX_TASK_BYTES", 2000)
+    _no_dask(monkeypatch)
+    windows = _spy_windows(monkeypatch)
+    r = runner.invoke(main, ["verify", target, "--json"])
+    assert (r.exit_code, whole.exit_code) == ((1, 1) if what == "violating result" else (0, 0)), r.output
+    assert windows and all(w is not None and min(w[1], 12) - w[0] <= 7 for _, w in windows), windows
+    a, b = json.loads(r.output), json.loads(whole.output)
+    assert a == b
+    if what == "violating result":
+        assert [s["frame"] for s in a["steps"] if not s["ok"]] == [9]
+
+
+def test_result_read_in_a_window_equals_the_same_rows_of_a_whole_read(tmp_path):
+    """`read_result(window=...)`: the window's frames and the steps among them, with their rows of
+    the per-step groups, frame numbers shifted to the window's; a NaN outside the window is not
+    read, one inside is named by the file's step and frame."""
+    from penfree.formats.result import read_result
+
+    path = _cloth_over_a_rising_plate(tmp_path / "in.h5")
+    out = str(tmp_path / "out.h5")
+    assert CliRunner().invoke(main, ["deform", path, "-o", out, "--stats", "--model", "auto"]).exit_code == 0
+    full, part = read_result(out), read_result(out, window=(4, 9))
+    rows = np.flatnonzero((full.steps["frame"] >= 4) & (full.steps["frame"] < 9))
+    np.testing.assert_array_equal(part.sequence.positions, full.sequence.positions[4:9])
+    assert part.steps["frame"].tolist() == (full.steps["frame"][rows] - 4).tolist()
+    for k, v in full.steps.items():
+        if k != "frame":
+            np.testing.assert_array_equal(part.steps[k], np.asarray(v)[rows], err_msg=k)
+    assert part.groups["stats"]["frame"].tolist() == (full.groups["stats"]["frame"][rows] - 4).tolist()
+    if "selection" in full.groups:
+        np.testing.assert_array_equal(part.groups["selection"]["candidates"], full.groups["selection"]["candidates"])
+        np.testing.assert_array_equal(part.groups["selection"]["chosen"], full.groups["selection"]["chosen"][rows])
+    with h5py.File(out, "r+") as f:
+        k_in, k_out = int(rows[1]), int(np.flatnonzero(full.steps["frame"] == 10)[0])
+        for k in (k_in, k_out):
+            d = f["steps/deformed"][k]
+            d[0, 0] = np.nan
+            f["steps/deformed"][k] = d
+    read_result(out, window=(1, 4))  # neither NaN is read
+    from penfree.errors import FormatError
+
+    with pytest.raises(FormatError, match=rf"step {k_in} \(frame {int(full.steps['frame'][k_in])}\) holds NaN"):
+        read_result(out, window=(4, 9))

@@ -64,19 +64,20 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
     from ..core.pipeline.deform import deform_sequence, deform_stats, result_attrs, summarize_steps
     from ..formats import check_outputs, input_files, read_sequence
     from ..formats.result import write_result
-    from ..scaleout import is_scaleout
+    from ..scaleout import is_long, is_scaleout
 
     if dhat is not None and not client_model:
         raise InputError("--dhat is the contact offset of --client-model's replay; give --client-model too")
+    opts = dict(model=model, projection=projection, margin=margin, thickness=thickness,
+                contact_radius=contact_radius, per_vertex=per_vertex, check_start=check_start,
+                frames=parse_frames(frames), format=in_format)
+    serial_only = weights_name or usd_prims or usd_obstacles or client_model
     if is_scaleout(input_paths, workers, scheduler):  # several inputs / Dask: penfree.scaleout
-        if weights_name or usd_prims or usd_obstacles or client_model:
+        if serial_only:
             raise InputError("--weights, --prim, --obstacle and --client-model are not supported with several "
                              "inputs, --workers or --scheduler")
         from . import scaleout
 
-        opts = dict(model=model, projection=projection, margin=margin, thickness=thickness,
-                    contact_radius=contact_radius, per_vertex=per_vertex, check_start=check_start,
-                    frames=parse_frames(frames), format=in_format)
         return scaleout.deform(input_paths, output_path, opts, overwrite=overwrite, with_stats=with_stats,
                                workers=workers, scheduler=scheduler, threads=threads, as_json=as_json)
     input_path = input_paths[0]
@@ -92,6 +93,8 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
     check_outputs([output_path], inputs, overwrite)
     frame_slice = parse_frames(frames)
     set_threads(threads)
+    if not serial_only and is_long(input_path, "sequence", in_format):
+        return _deform_long(input_path, output_path, opts, overwrite, with_stats, as_json)
     seq = read_sequence(input_path, format=in_format, prims=usd_prims, obstacles=usd_obstacles)
     weights = _read_weights(input_path, weights_name, seq) if weights_name else None
     cm = None
@@ -131,6 +134,37 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
         echo_json(summary)
         return
     _print_summary(summary, seq)
+
+
+def _deform_long(input_path, output_path, opts, overwrite, with_stats, as_json):
+    """A serial run of a recording whose frames exceed `scaleout.plan.MAX_TASK_BYTES`: its
+    frame ranges one after another in this process, merged as a scale-out run merges them
+    (the same result; at most about that many bytes of frames held at a time)."""
+    from ..core.pipeline.deform import summarize_steps
+    from ..formats import read_sequence
+    from ..scaleout import deform_many
+
+    t0 = time.perf_counter()
+    head = read_sequence(input_path, format="hdf5", frame_window=(0, 2))  # the summary's size and kind
+    n_steps = len(range(*slice(*(opts["frames"] or (None, None))).indices(_n_frames(input_path))))
+    with Progress(n_steps, "deform") as bar:
+        [(_, _, steps)] = deform_many([input_path], output_path, options=dict(opts, progress=bar),
+                                      overwrite=overwrite, with_stats=with_stats, in_process=True)
+    elapsed = time.perf_counter() - t0
+    summary = summarize_steps(steps)
+    summary.update(output=output_path, input=input_path, wall_time_s=elapsed,
+                   frames_per_s=summary["steps"] / elapsed if elapsed > 0 else None)
+    if as_json:
+        echo_json(summary)
+        return
+    _print_summary(summary, head)
+
+
+def _n_frames(path) -> int:
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        return int(f["positions"].shape[0])
 
 
 def _read_weights(path, name, seq):

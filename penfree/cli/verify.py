@@ -78,8 +78,8 @@ def command(paths, thickness, frames, threads, as_json, max_pairs, mode, strict,
     states included. Exit 0: all steps safe; 1: a violation; 2: unusable input.
     """
     from ..core.pipeline.verification import n_steps, verify_file
-
-    from ..scaleout import is_scaleout
+    from ..formats.result import is_result_file
+    from ..scaleout import is_long, is_scaleout, verify_many
 
     frame_slice = parse_frames(frames)
     if is_scaleout(paths, workers, scheduler):  # several inputs / Dask: penfree.scaleout
@@ -96,9 +96,14 @@ def command(paths, thickness, frames, threads, as_json, max_pairs, mode, strict,
     path = paths[0]
     set_threads(threads)
     with Progress(n_steps(path, frame_slice), "verify") as bar:
-        report = verify_file(path, thickness=thickness, frames=frame_slice, mode=mode,
-                             max_pairs=max_pairs, progress=bar, strict=strict, prims=usd_prims,
-                             obstacles=usd_obstacles)
+        if not (usd_prims or usd_obstacles) and is_long(path, "result" if is_result_file(path) else "path"):
+            # frames beyond MAX_TASK_BYTES: its frame ranges one after another, as a worker would
+            [report] = verify_many([path], thickness=thickness, frames=frame_slice, mode=mode, max_pairs=max_pairs,
+                                   strict=strict, in_process=True, step_progress=bar)
+        else:
+            report = verify_file(path, thickness=thickness, frames=frame_slice, mode=mode,
+                                 max_pairs=max_pairs, progress=bar, strict=strict, prims=usd_prims,
+                                 obstacles=usd_obstacles)
     if not report.steps:  # "all steps safe" about nothing would be a false claim
         raise no_step_error(path, frame_slice, report.kind)
     if as_json:

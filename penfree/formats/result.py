@@ -35,8 +35,9 @@ from ..constants import FORMAT_VERSION
 from ..errors import FormatError, InputError
 from ..sequence import Sequence
 from .atomic import atomic_file
-from .frames import Frames
-from .hdf5 import has_h5_magic, open_h5, read_attrs, read_from_h5, write_attrs, write_positions, write_to_h5
+from .frames import Frames, StoredFrames
+from .hdf5 import (frame_window, has_h5_magic, open_h5, read_attrs, read_from_h5, write_attrs, write_positions,
+                   write_to_h5)
 
 #: Per-step datasets that every reader needs (SPEC section 8); others may require more
 #: (`read_result`'s `require`, e.g. ``certificate_margin`` for ``report``).
@@ -268,7 +269,7 @@ def _read_deformed(ds, where, frame=None) -> np.ndarray:
     return out
 
 
-def read_result(path, require=()) -> DeformResult:
+def read_result(path, require=(), window=None) -> DeformResult:
     """Read and validate a deform result file.
 
     Parameters
@@ -277,6 +278,12 @@ def read_result(path, require=()) -> DeformResult:
     require : iterable of str
         Per-step datasets needed beyond ``frame``, ``A``, ``b`` and ``deformed``
         (e.g. ``("certificate_margin",)`` for a report).
+    window : (start, stop), optional
+        Read only the frames ``start .. stop - 1`` (at least 2) and the steps whose frame
+        lies among them, with their rows of the per-step groups (``component_maps``,
+        ``stats``, ``selection``): a frame range of a long recording (`penfree.scaleout`).
+        The per-step tables are validated whole first; frame numbers are then those of
+        the window (``steps/frame`` less `start`), messages name the file's.
 
     Raises
     ------
@@ -296,20 +303,65 @@ def read_result(path, require=()) -> DeformResult:
             raise FormatError(f"steps must be a group of per-step datasets; got {got} in {where}:/steps")
         if g.get("frame", getlink=True) is None:
             raise FormatError(f"{where} is not a deform result; missing dataset steps/frame in {where}:/steps/frame")
-        seq = read_from_h5(f, where)
+        seq = read_from_h5(f, where, window)
         seq.validate()
         steps = _read_group(g, where, skip_deformed=True)
-        if "deformed" in g:
-            frame = steps.get("frame")
-            usable = frame is not None and np.ndim(frame) == 1 and np.asarray(frame).dtype.kind in "iu"
-            steps["deformed"] = _read_deformed(g["deformed"], where, frame if usable else None)
+        frame = steps.get("frame")
+        usable = frame is not None and np.ndim(frame) == 1 and np.asarray(frame).dtype.kind in "iu"
         attrs = read_attrs(f, where)
         groups = {k: _read_group(obj, where) for k, obj in f.items()
                   if isinstance(obj, h5py.Group) and k not in SEQUENCE_NAMES}
-    S = _check_steps(steps, seq.n_frames, seq.n_vertices, where, require=tuple(require))
-    _check_groups(groups, S, where)
+        if window is None:
+            if "deformed" in g:
+                steps["deformed"] = _read_deformed(g["deformed"], where, frame if usable else None)
+            S = _check_steps(steps, seq.n_frames, seq.n_vertices, where, require=tuple(require))
+            _check_groups(groups, S, where)
+        else:
+            steps, groups = _window_steps(f, g, steps, groups, window, where, tuple(require), seq.n_vertices)
     steps["frame"] = steps["frame"].astype(np.int64)
     return DeformResult(sequence=seq, steps=steps, attrs=attrs, groups=groups, origin=where)
+
+
+def _window_steps(f, g, steps, groups, window, where, require, N):
+    """The steps of `read_result`'s frame window: the whole tables validated (the stored
+    ``deformed`` by shape and dtype), then the window's rows, ``frame`` less its start."""
+    T = f["positions"].shape[0]
+    if "deformed" in g:
+        ds = g["deformed"]
+        if np.dtype(ds.dtype).kind != "f" or ds.ndim != 3:
+            raise FormatError(f"steps/deformed must be (S, N, 3) float; got {ds.shape} {ds.dtype} "
+                              f"in {where}:/steps/deformed")
+        steps["deformed"] = StoredFrames(ds, where, "steps/deformed")
+    S = _check_steps(steps, T, N, where, require=require)
+    _check_groups(groups, S, where)
+    start, stop = frame_window(window, T, where)
+    frame = np.asarray(steps["frame"], dtype=np.int64)
+    rows = np.flatnonzero((frame >= start) & (frame < stop))
+    out = {k: np.asarray(v)[rows] for k, v in steps.items() if k != "deformed" and not isinstance(v, dict)}
+    out["frame"] = frame[rows] - start
+    if "deformed" in steps:
+        stored = steps["deformed"]
+        out["deformed"] = np.empty((rows.size, N, 3), dtype=stored.dtype)
+        for i, k in enumerate(rows):
+            try:
+                out["deformed"][i] = stored.frame(k)
+            except InputError:
+                raise FormatError(f"steps/deformed must be finite; step {k} (frame {int(frame[k])}) holds NaN or "
+                                  f"Inf in {where}:/steps/deformed") from None
+    groups = {name: _step_rows(content, rows, S) for name, content in groups.items()}
+    stats = groups.get("stats")
+    if isinstance(stats, dict) and isinstance(stats.get("frame"), np.ndarray) and stats["frame"].dtype.kind in "iu":
+        stats["frame"] = stats["frame"].astype(np.int64) - start
+    return out, groups
+
+
+def _step_rows(content, rows, S):
+    """The `rows` of a group's per-step arrays (leading dimension S; ``selection/candidates``
+    names the candidates, not steps), nested groups alike."""
+    if isinstance(content, dict):
+        return {k: v if k == "candidates" else _step_rows(v, rows, S) for k, v in content.items()}
+    a = np.asarray(content)
+    return a[rows] if a.ndim >= 1 and a.shape[0] == S else a
 
 
 def is_result_file(path) -> bool:

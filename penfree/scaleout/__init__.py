@@ -37,10 +37,10 @@ file and frame range in one line (the workers' own error logs are silenced).
 from .cluster import DASK_MISSING, client, gather, n_workers_of, require_dask, run_tasks
 from .deform import deform_file_task, deform_many, deform_task, merge_task
 from .plan import (DIRECTORY_PATTERNS, FILE_EXTENSIONS, MIN_STEPS_PER_TASK, TASKS_PER_WORKER, Task,
-                   deform_outputs, expand_inputs, is_scaleout, one_input, output_paths, plan)
+                   deform_outputs, expand_inputs, is_long, is_scaleout, one_input, output_paths, plan)
 from .verify_report import report_many, report_task, verify_many, verify_task
 
 __all__ = ["DASK_MISSING", "DIRECTORY_PATTERNS", "FILE_EXTENSIONS", "MIN_STEPS_PER_TASK", "TASKS_PER_WORKER", "Task",
            "client", "deform_file_task", "deform_many", "deform_outputs", "deform_task", "expand_inputs", "gather",
-           "is_scaleout", "merge_task", "n_workers_of", "one_input", "output_paths", "plan", "report_many",
+           "is_long", "is_scaleout", "merge_task", "n_workers_of", "one_input", "output_paths", "plan", "report_many",
            "report_task", "require_dask", "run_tasks", "verify_many", "verify_task"]

@@ -1,5 +1,6 @@
-"""The Dask side of the scale-out path: the client (a local cluster or a scheduler's), and
-one loop that collects task results in order, counts progress and names a failed task."""
+"""The Dask side of the scale-out path: the client (a local cluster or a scheduler's, or
+`InProcess`, which runs the same tasks one after another here), and one loop that
+collects task results in order, counts progress and names a failed task."""
 
 from __future__ import annotations
 
@@ -23,9 +24,52 @@ def require_dask():
     return distributed
 
 
+class Deferred:
+    """A task of `InProcess`: run when its result is first asked for (`gather` asks in
+    submission order), its arguments' own tasks first, as Dask resolves futures given
+    as arguments (alone or in a list)."""
+
+    def __init__(self, key, fn, args):
+        self.key, self._fn, self._args = key, fn, args
+        self._done, self._value = False, None
+
+    def result(self):
+        if not self._done:
+            args = [_resolved(a) for a in self._args]
+            self._value, self._done, self._args = self._fn(*args), True, ()
+        return self._value
+
+    def cancel(self):
+        self._args = ()
+
+
+def _resolved(a):
+    if isinstance(a, Deferred):
+        return a.result()
+    if isinstance(a, list):
+        return [_resolved(b) for b in a]
+    return a
+
+
+class InProcess:
+    """The client of a run in this process, without Dask: one worker, tasks run one at a
+    time in the order they were submitted (`Deferred`). Serial ``deform`` and ``verify`` of
+    a long recording use it to go through frame ranges of bounded size (`plan.plan`)."""
+
+    def submit(self, fn, *args, pure=False, key=None):
+        return Deferred(key or new_key(), fn, args)
+
+    def scheduler_info(self):
+        return {"workers": {"in-process": {}}}
+
+
 @contextmanager
-def client(workers=None, scheduler=None):
-    """A `distributed.Client`: on `scheduler`, else on a local cluster of `workers` processes."""
+def client(workers=None, scheduler=None, in_process=False):
+    """A `distributed.Client`: on `scheduler`, else on a local cluster of `workers` processes;
+    `InProcess` with `in_process`."""
+    if in_process:
+        yield InProcess()
+        return
     distributed = require_dask()
     if scheduler is not None:
         try:
@@ -68,14 +112,18 @@ def gather(futures, labels, progress=None) -> list:
     """Results of `futures` in order, calling `progress` once per finished one.
 
     A failure raises InputError naming the `labels` entry of the future that failed;
-    the others are cancelled.
+    the others are cancelled. `Deferred` tasks (`InProcess`) run here, in order.
     """
-    from distributed import as_completed
-
     index = {f.key: k for k, f in enumerate(futures)}
     results = [None] * len(futures)
+    if futures and isinstance(futures[0], Deferred):
+        done = iter(futures)
+    else:
+        from distributed import as_completed
+
+        done = as_completed(futures)
     try:
-        for fut in as_completed(futures):
+        for fut in done:
             k = index[fut.key]
             try:
                 results[k] = fut.result()

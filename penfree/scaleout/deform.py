@@ -35,7 +35,7 @@ def _deform(task, options, with_stats, threads):
     out = deform_sequence(seq, model=options["model"], projection=options["projection"], margin=options["margin"],
                           thickness=options["thickness"], contact_radius=options.get("contact_radius"),
                           frames=frames, per_vertex=options["per_vertex"],
-                          check_start=bool(options.get("check_start")) or with_stats)
+                          check_start=bool(options.get("check_start")) or with_stats, progress=options.get("progress"))
     groups = dict(out.groups)
     if with_stats:
         groups["stats"] = deform_stats(seq, out.steps, thickness=options["thickness"],
@@ -110,8 +110,12 @@ def _write_output(path, out_path, seq, steps, groups, options):
 
 
 def deform_many(specs, output, *, options, overwrite=False, with_stats=False, workers=None, scheduler=None,
-                threads=None, progress=None, on_total=None) -> list:
+                threads=None, progress=None, on_total=None, in_process=False) -> list:
     """Deform every input on Dask; write `output` for one input, else ``<output>/<stem>.h5``.
+
+    With `in_process` the same tasks run here one after another, without Dask
+    (`cluster.InProcess`): a serial ``penfree deform`` of a long recording goes through
+    its frame ranges so, holding one range at a time.
 
     Parameters
     ----------
@@ -123,7 +127,8 @@ def deform_many(specs, output, *, options, overwrite=False, with_stats=False, wo
         output directory (created if missing); a name ending in ``.h5`` is refused.
     options : dict
         ``model``, ``projection``, ``margin``, ``thickness``, ``frames`` ((start, stop)
-        or None), ``per_vertex``, ``format`` as for `deform_sequence` / the CLI.
+        or None), ``per_vertex``, ``format`` as for `deform_sequence` / the CLI; with
+        `in_process`, ``progress`` may be a callable called once per step deformed.
     progress : callable, optional
         Called once per finished task. on_total(n) is called first with the task count.
 
@@ -169,9 +174,11 @@ def deform_many(specs, output, *, options, overwrite=False, with_stats=False, wo
     try:
         stage = _own_folder(outdir)
         try:
-            results, index, final = _run(c_args=(workers, scheduler), stage=stage, inputs=inputs, outs=outs,
-                                         options=options, with_stats=with_stats, threads=threads or 1,
-                                         progress=progress, on_total=on_total)
+            # a worker process runs one thread unless told; a run in this process keeps its own
+            results, index, final = _run(c_args=(workers, scheduler, in_process), stage=stage, inputs=inputs,
+                                         outs=outs, options=options, with_stats=with_stats,
+                                         threads=threads if in_process else threads or 1, progress=progress,
+                                         on_total=on_total)
             _commit([os.path.join(stage, os.path.basename(o)) for o in outs], outs, overwrite)
         finally:  # the run's own folder (on a local cluster its workers are gone by now)
             shutil.rmtree(stage, ignore_errors=True)

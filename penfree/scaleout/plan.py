@@ -20,9 +20,10 @@ FILE_EXTENSIONS = (".h5", ".hdf5")
 TASKS_PER_WORKER = 2
 #: A frame range holds at least this many steps.
 MIN_STEPS_PER_TASK = 4
-#: A deform task holds its frames and their deformed states (two ``(steps, N, 3)`` arrays);
-#: a file whose steps need more is cut into ranges of at most this many bytes of them,
-#: however many workers and files there are (a recording of tens of thousands of frames).
+#: A deform or verify task holds its frames and their deformed states (two ``(steps, N, 3)``
+#: arrays, one to verify a raw sequence); a file whose steps need more is cut into ranges
+#: of at most this many bytes of them, however many workers and files there are (a
+#: recording of tens of thousands of frames), and on a serial run too (`InProcess`).
 MAX_TASK_BYTES = 1 << 30
 
 
@@ -67,6 +68,15 @@ def is_scaleout(specs, workers=None, scheduler=None) -> bool:
     if os.path.isdir(spec):
         return any(glob.glob(os.path.join(glob.escape(spec), pat)) for pat in DIRECTORY_PATTERNS)
     return not os.path.exists(spec) and glob.has_magic(spec)
+
+
+def is_long(path, kind="sequence", fmt=None) -> bool:
+    """True when `path` is an HDF5 file whose frames take more than `MAX_TASK_BYTES`: a
+    serial run goes through it in frame ranges (`cluster.InProcess`), as a worker would."""
+    if fmt not in (None, "hdf5"):
+        return False
+    T, steps, frame_bytes = _steps_of(path, kind)
+    return steps is not None and T * frame_bytes > MAX_TASK_BYTES
 
 
 def one_input(specs, inputs) -> bool:
@@ -164,9 +174,9 @@ def _ranges(n, n_parts):
 def plan(paths, n_workers, frames=None, kind="sequence") -> list:
     """Tasks for `paths`: one per file, plus step ranges within a file when there are
     fewer files than ``TASKS_PER_WORKER * n_workers`` (see `Task` for the kinds). A file
-    to deform whose frames take more than `MAX_TASK_BYTES` always goes in ranges, each
-    holding at most about that much of frames and deformed states (a whole-file task
-    would read it whole).
+    whose frames take more than `MAX_TASK_BYTES` always goes in ranges, each holding at
+    most about that much of frames and deformed states (a whole-file task would read it
+    whole; a range task reads only the frames of its steps).
 
     With a user frame slice, ranges are cut inside the selected steps; a raw sequence
     to verify with a frame slice stays one task (its steps need both frames selected).
@@ -175,17 +185,18 @@ def plan(paths, n_workers, frames=None, kind="sequence") -> list:
     per_file = max(1, math.ceil(want / max(1, len(paths))))
     tasks = []
     for p in paths:
-        T, steps, frame_bytes = _steps_of(p, kind) if per_file > 1 or kind == "sequence" else (None, None, 0)
+        T, steps, frame_bytes = _steps_of(p, kind)
         if steps is not None and frames is not None:
             if kind == "path":
                 steps = None
             else:
                 steps = steps[np.isin(steps, np.arange(T)[slice(*frames)])]
-        # a whole-file deform task reads every frame: a large file goes in ranges of bounded size
-        big = kind == "sequence" and steps is not None and T * frame_bytes > MAX_TASK_BYTES
+        # a whole-file task reads every frame: a large file goes in ranges of bounded size
+        big = steps is not None and T * frame_bytes > MAX_TASK_BYTES
         parts = per_file
-        if big:
-            parts = max(parts, math.ceil(2 * (steps.size + 1) * frame_bytes / MAX_TASK_BYTES))
+        if big:  # a step holds a frame, and a deformed state unless it verifies a raw sequence
+            per_step = frame_bytes * (1 if kind == "path" else 2)
+            parts = max(parts, math.ceil((steps.size + 1) * per_step / MAX_TASK_BYTES))
         if steps is None or not steps.size or (not big and (steps.size < 2 * MIN_STEPS_PER_TASK or parts == 1)):
             tasks.append(Task(p, kind=kind))
             continue

@@ -11,22 +11,26 @@ from .plan import Task, expand_inputs, plan
 
 
 def verify_task(task, options, threads):
-    """Worker: verify the steps of `task` (a `VerifyReport`)."""
+    """Worker: verify the steps of `task` (a `VerifyReport`); a range reads only the frames
+    its steps use (HDF5 `frame_window`: ranges are made of HDF5 files only, `plan`)."""
     from ..core.pipeline.verification import verify_file
 
     set_threads(threads)
-    frames = options["frames"] if task.lo is None else task.frames()
+    frames, window = (options["frames"], None) if task.lo is None else (None, task.frames())
     return verify_file(task.path, thickness=options["thickness"], frames=frames, mode=options["mode"],
-                       max_pairs=options["max_pairs"], strict=options.get("strict", False))
+                       max_pairs=options["max_pairs"], strict=options.get("strict", False), window=window,
+                       progress=options.get("progress"))
 
 
 def verify_many(specs, *, thickness=None, frames=None, mode="auto", max_pairs=10, workers=None, scheduler=None,
-                threads=None, progress=None, on_total=None, strict=False) -> list:
-    """`verify_file` for every input on Dask; one merged `VerifyReport` per input, in order."""
+                threads=None, progress=None, on_total=None, strict=False, in_process=False, step_progress=None) -> list:
+    """`verify_file` for every input on Dask (`in_process`: here, task after task, without
+    Dask, `step_progress` called once per step verified); one merged `VerifyReport` per
+    input, in order."""
     from ..formats.result import is_result_file
 
     inputs = expand_inputs(specs)
-    with client(workers, scheduler) as c:
+    with client(workers, scheduler, in_process) as c:
         n = n_workers_of(c)
         tasks = []
         for p in inputs:
@@ -35,7 +39,10 @@ def verify_many(specs, *, thickness=None, frames=None, mode="auto", max_pairs=10
         if on_total is not None:
             on_total(len(tasks))
         options = {"thickness": thickness, "frames": frames, "mode": mode, "max_pairs": max_pairs, "strict": strict}
-        reports = run_tasks(c, verify_task, tasks, (options, threads or 1), progress)
+        if in_process:
+            options["progress"] = step_progress
+        # a worker process runs one thread unless told; a run in this process keeps its own
+        reports = run_tasks(c, verify_task, tasks, (options, threads if in_process else threads or 1), progress)
     merged = []
     for p in inputs:
         mine = [r for t, r in zip(tasks, reports) if t.path == p]

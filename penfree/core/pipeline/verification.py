@@ -8,7 +8,7 @@ The CLI (`penfree verify`) only parses, calls `verify_file` and prints.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -126,7 +126,7 @@ def verify_sequence(seq, *, thickness=None, frames=None, max_pairs=DEFAULT_MAX_P
                         obstacles=obs, obstacle_names=names, max_pairs=max_pairs,
                         start_intersections=clean_frame != s)
         clean_frame = s + 1 if r.ok else None
-        rep.steps.append(StepReport(s, f"frame {s + 1}", r))
+        rep.steps.append(StepReport(s, f"frame {s + 1}", _shared_edges(r, rep)))
         if progress is not None:
             progress()
     return rep
@@ -198,10 +198,21 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
             r = verify_step(x, x_def, edges=seq.edges, faces=seq.faces, thickness=h, obstacles=obs,
                             obstacle_names=names, max_pairs=max_pairs, pre_existing=True)
         is_claimed = claimed is not None and bool(np.isfinite(claimed[k]) and claimed[k] >= 0)
-        rep.steps.append(StepReport(s, "deformed", r, cert, float(m), is_claimed, strict))
+        rep.steps.append(StepReport(s, "deformed", _shared_edges(r, rep), cert, float(m), is_claimed, strict))
         if progress is not None:
             progress()
     return rep
+
+
+def _shared_edges(r, rep):
+    """`r` holding the edges array of the report's earlier steps when its edges equal them:
+    each step's check makes the scene's edges anew, and a report of thousands of steps held
+    thousands of copies (0.4 MB a step at 8K vertices)."""
+    for earlier in rep.steps[-1:]:
+        E = earlier.result.edges
+        if r.edges is not None and E is not None and r.edges.shape == E.shape and np.array_equal(r.edges, E):
+            r.edges = E
+    return r
 
 
 def _result_lists(seq, mode):
@@ -239,7 +250,7 @@ def _component_maps(res, k):
 
 
 def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEFAULT_MAX_PAIRS, progress=None,
-                strict=False, prims=None, obstacles=None):
+                strict=False, prims=None, obstacles=None, window=None):
     """Verify a deform result or a raw sequence file (any readable format).
 
     Parameters
@@ -258,6 +269,12 @@ def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEF
     prims, obstacles : sequence of str, optional
         Raw USD stages: the prims read as the scene and as obstacles (as for
         ``penfree deform --prim/--obstacle``); ignored for other formats.
+    window : (start, stop), optional
+        HDF5 files: read only the frames ``start .. stop - 1`` and verify the steps
+        among them (a result's steps from those frames, a raw sequence's steps between
+        two of them; `frames` then selects within the window, in its numbering). The
+        report numbers frames as the file does. A frame range of a long recording
+        (`penfree.scaleout`).
 
     Returns
     -------
@@ -278,10 +295,23 @@ def verify_file(path, *, thickness=None, frames=None, mode="auto", max_pairs=DEF
         if prims or obstacles:
             raise InputError(f"--prim and --obstacle choose prims of a USD stage; {path} is a deform result "
                              f"(its scene and obstacles are stored in it)")
-        return verify_result(read_result(path), thickness=thickness, frames=frames, mode=mode,
-                             max_pairs=max_pairs, progress=progress, strict=strict)
-    seq = read_sequence(path, prims=prims, obstacles=obstacles)
-    return verify_sequence(seq, thickness=thickness, frames=frames, max_pairs=max_pairs, progress=progress)
+        rep = verify_result(read_result(path, window=window), thickness=thickness, frames=frames, mode=mode,
+                            max_pairs=max_pairs, progress=progress, strict=strict)
+    else:
+        if window is None:
+            seq = read_sequence(path, prims=prims, obstacles=obstacles)
+        else:
+            seq = read_sequence(path, format="hdf5", frame_window=window)
+        rep = verify_sequence(seq, thickness=thickness, frames=frames, max_pairs=max_pairs, progress=progress)
+    return rep if window is None else _renumbered(rep, int(window[0]))
+
+
+def _renumbered(rep, first):
+    """`rep` of a frame window whose frame 0 is the file's frame `first`, in the file's numbers."""
+    for k, st in enumerate(rep.steps):
+        target = f"frame {st.frame + first + 1}" if rep.kind == "sequence" else st.target
+        rep.steps[k] = replace(st, frame=st.frame + first, target=target)
+    return rep
 
 
 def n_steps(path, frames=None) -> int:
