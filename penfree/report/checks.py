@@ -19,6 +19,9 @@ APPLIED_F64_ROUNDINGS = 32.0
 #: Roundings of the stored dtype allowed per unit of ``|x_def| + |x|`` (2 are needed, for a
 #: shortened step; see `applied_maps`).
 APPLIED_DTYPE_ROUNDINGS = 2.5
+#: A map whose terms in `applied_maps`' bound exceed the coordinates involved by more than
+#: this factor (they cancel) makes that bound loose: its step needs verify's path check too.
+APPLIED_CANCELLATION_MAX = 64.0
 
 
 def _component_arrays(groups, S, N, seq):
@@ -32,24 +35,25 @@ def _component_arrays(groups, S, N, seq):
     if A is None or b is None or isinstance(A, dict) or isinstance(b, dict) or isinstance(labels, dict):
         return None
     A, b = np.asarray(A), np.asarray(b)
-    if (A.dtype.kind not in "iuf" or b.dtype.kind not in "iuf" or A.ndim != 4 or A.shape[0] != S
+    if (seq is None or A.dtype.kind not in "iuf" or b.dtype.kind not in "iuf" or A.ndim != 4 or A.shape[0] != S
             or A.shape[2:] != (3, 3) or b.shape != A.shape[:2] + (3,)):
         return None
-    if labels is None and seq is not None:
-        from ..core.pipeline.components import component_labels
+    from ..core.pipeline.components import component_labels
 
-        labels = component_labels(N, seq.edges, seq.faces, seq.components)
-    labels = None if labels is None else np.asarray(labels)
-    C = A.shape[1]
-    if (labels is None or labels.shape != (N,) or (N and labels.dtype.kind not in "iu")
-            or (N and (labels.min() < 0 or labels.max() >= C))):
+    # deform's components of the scene; stored labels must be those (a finer partition,
+    # e.g. one label per vertex, would let any state be "the image" of per-vertex maps)
+    own = component_labels(N, seq.edges, seq.faces, seq.components)
+    if labels is not None and not (np.shape(labels) == (N,) and np.array_equal(np.asarray(labels), own)):
         return None
-    return A.astype(np.float64), b.astype(np.float64), labels.astype(np.int64)
+    if N and own.max() >= A.shape[1]:
+        return None
+    return A.astype(np.float64), b.astype(np.float64), own
 
 
-def _is_image(x, x_def, A, b, labels=None) -> bool:
-    """True iff every coordinate of `x_def` lies within the bound of `applied_maps` of the
-    exact ``A[l] x + b[l]`` (``l`` the vertex's label, 0 without `labels`)."""
+def _is_image(x, x_def, A, b, labels=None) -> tuple:
+    """``(image, loose)``: every coordinate of `x_def` lies within the bound of `applied_maps`
+    of the exact ``A[l] x + b[l]`` (``l`` the vertex's label, 0 without `labels`); the map
+    terms of that bound exceed ``APPLIED_CANCELLATION_MAX`` times the coordinates."""
     # One rounding to the stored dtype, which SPEC section 8 makes the input's: a
     # stored dtype coarser than the positions' earns no more room than theirs.
     fi = min((np.finfo(np.dtype(x_def.dtype)), np.finfo(np.dtype(x.dtype))), key=lambda f: f.eps)
@@ -61,6 +65,7 @@ def _is_image(x, x_def, A, b, labels=None) -> bool:
     absA = np.abs(A)
     # deform's centre terms, per map: |D| = |A - I| (deform takes D = A - I back) and |c_j| <= X_j
     centre = 2.0 * np.einsum("cij,j->ci", np.abs(A - np.eye(3)), X) + np.abs(b)
+    loose = False
     for lo in range(0, n, APPLIED_BLOCK_ROWS):
         xb = np.asarray(x[lo:lo + APPLIED_BLOCK_ROWS], dtype=np.float64)
         vb = np.asarray(x_def[lo:lo + APPLIED_BLOCK_ROWS], dtype=np.float64)
@@ -75,8 +80,21 @@ def _is_image(x, x_def, A, b, labels=None) -> bool:
         tol = (APPLIED_F64_ROUNDINGS * UNIT_ROUNDOFF * (mag + ax + av)
                + APPLIED_DTYPE_ROUNDINGS * u_d * (av + ax) + 2.0 * eta)
         if not (np.abs(vb - y) <= tol).all():  # NaN fails too
-            return False
-    return True
+            return False, loose
+        loose = loose or bool((mag > APPLIED_CANCELLATION_MAX * (ax + av + X)).any())
+    return True, loose
+
+
+def _path_passes(seq, s, x_def) -> bool:
+    """verify's check of the path from ``positions[s]`` to `x_def` (obstacles at frame s, the
+    result's thickness; pairs that start closer keep their state, SPEC section 6)."""
+    from ..core.contact.obstacles import as_verify_obstacles
+    from ..core.verify.path import verify_step
+
+    obs, names = as_verify_obstacles(seq.obstacles, s, s)
+    return verify_step(np.asarray(seq.positions[s], dtype=np.float64), np.asarray(x_def, dtype=np.float64),
+                       edges=seq.edges, faces=seq.faces, thickness=seq.thickness, obstacles=obs,
+                       obstacle_names=names, pre_existing=True).ok
 
 
 def applied_maps(steps, groups=None, seq=None) -> np.ndarray:
@@ -115,6 +133,16 @@ def applied_maps(steps, groups=None, seq=None) -> np.ndarray:
     Doing nothing is exact, and per-component steps are per-group `fit_step` maps. The
     bound is a few ulps of the coordinates (float32) or about 100 (float64, far from
     the origin), far below any vertex spacing.
+
+    Unless the map's terms cancel: a map with a huge entry along a direction in which
+    the start state does not extend (a flat sheet's normal, say ``A_zz = 1e15`` with
+    ``b_z = -1e15 z``) is the same map on the data, but its terms, and so the bound,
+    are huge. Where they exceed ``APPLIED_CANCELLATION_MAX`` times the coordinates
+    involved (deform's maps, near the identity, stay far below it), the step counts as
+    applied only if the path to the stored state also passes verify's check
+    (`verify_step`, obstacles at the step's frame): an edit hidden in that room cannot
+    carry a penetration. Per-component labels must be deform's own (`component_labels`
+    of the scene): the file's are compared with them.
     """
     frames = np.asarray(steps["frame"])
     S = frames.size
@@ -131,15 +159,16 @@ def applied_maps(steps, groups=None, seq=None) -> np.ndarray:
     for k in range(S):
         x = seq.positions[int(frames[k])]
         if np.isfinite(A_all[k]).all() and np.isfinite(b_all[k]).all():
-            ok[k] = _is_image(x, deformed[k], A_all[k][None], b_all[k][None])
+            image, loose = _is_image(x, deformed[k], A_all[k][None], b_all[k][None])
+        elif np.isnan(A_all[k]).all():
+            if comp is False:
+                comp = _component_arrays(groups, S, N, seq)
+            if comp is None or not (np.isfinite(comp[0][k]).all() and np.isfinite(comp[1][k]).all()):
+                continue
+            image, loose = _is_image(x, deformed[k], comp[0][k], comp[1][k], comp[2])
+        else:
             continue
-        if not np.isnan(A_all[k]).all():
-            continue
-        if comp is False:
-            comp = _component_arrays(groups, S, N, seq)
-        if comp is None or not (np.isfinite(comp[0][k]).all() and np.isfinite(comp[1][k]).all()):
-            continue
-        ok[k] = _is_image(x, deformed[k], comp[0][k], comp[1][k], comp[2])
+        ok[k] = image and (not loose or _path_passes(seq, int(frames[k]), deformed[k]))
     return ok
 
 
@@ -148,8 +177,9 @@ def recheck_certificates(steps, groups=None, seq=None, applied=None) -> np.ndarr
     deformed state is their image (`applied_maps`); never trusting stored claims.
 
     Step k's maps are certified when ``certify_map(A, m)`` holds for each with m its
-    ``margin_required`` (0 where the file has none; m >= 1 means no margin was possible
-    and only the identity is accepted, as in verify). A per-component step (``steps/A``
+    ``margin_required`` (0 where the file has none), and at least the margin of the
+    result's thickness (`gate.margin_rule`, which deform never goes below; m >= 1 means
+    no margin was possible and only the identity is accepted, as in verify). A per-component step (``steps/A``
     all NaN) needs every map ``component_maps/A[k]`` certified. A NaN, infinite or
     negative margin, a partly NaN map, missing component maps or a missing `seq` (the
     start states) count as not certified. `applied`: `applied_maps` output when the
@@ -160,6 +190,10 @@ def recheck_certificates(steps, groups=None, seq=None, applied=None) -> np.ndarr
     A = np.asarray(steps["A"], dtype=np.float64)
     S = A.shape[0]
     req = np.asarray(steps.get("margin_required", np.zeros(S)), dtype=np.float64).reshape(-1)
+    if seq is not None:  # a stored margin below the thickness's rule claims less than deform proves
+        from ..core.verify.gate import margin_rule
+
+        req = np.maximum(req, margin_rule(seq.thickness))  # NaN stays NaN
     # Without `seq` no step is certified (its deformed state cannot be checked): no maps needed.
     comp = None if seq is None else _component_arrays(groups, S, seq.n_vertices, seq)
     comp_A = None if comp is None else comp[0]

@@ -248,3 +248,93 @@ def test_applied_check_runs_in_blocks(tmp_path, monkeypatch):
     monkeypatch.setattr(checks_mod, "APPLIED_BLOCK_ROWS", 7)
     assert np.array_equal(applied_maps(steps, res.groups, res.sequence), whole)
     assert whole[:-1].all() and not whole[-1]
+
+
+# ---------------------------------------------------------------- forgeries the bound itself allowed (audit, 12-05)
+
+
+def _flat_sheet_on_the_ground(tmp_path, thickness=0.0):
+    """A flat 10 x 10 sheet (every z = 1e-3) turning and drifting above a ground half-space;
+    its affine deform result, read back."""
+    from _scenes import grid_faces, sheet
+
+    from penfree.core.pipeline.deform import deform_sequence, result_attrs
+    from penfree.formats.result import write_result
+    from penfree.report.build import open_result
+    from penfree.sequence import Obstacle
+
+    u, v = sheet(10)
+    frames = []
+    for t in range(6):
+        a = 0.02 * t + 0.002 * t * t
+        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        xy = (np.stack([u, v], axis=1) - 0.5) @ R.T + 0.5 + [0.004 * t, 0.001 * t]
+        frames.append(np.column_stack([xy, np.full(u.size, 1e-3)]))
+    ground = Obstacle("ground", normal=np.array([0.0, 0.0, 1.0]), offset=0.0)
+    seq = Sequence(positions=np.array(frames), faces=grid_faces(10), obstacles=[ground],
+                   thickness=thickness).validate()
+    out = deform_sequence(seq, model="affine")
+    path = tmp_path / "flat.h5"
+    write_result(path, seq, out.steps, result_attrs(str(path), out.options), groups=out.groups)
+    return open_result(path)
+
+
+@pytest.mark.parametrize("dz, through", [(-2e-3, True), (3e-3, False)], ids=["through-the-ground", "up"])
+def test_a_map_inflated_along_a_flat_scenes_normal_cannot_hide_an_edit(tmp_path, dz, through):
+    """``A_zz += 1e15``, ``b_z -= 1e15 z`` is the same map on a flat sheet, and its terms
+    made the rounding bound 1.4e-2: a vertex moved 2 mm through the ground passed. Such a
+    step now also needs verify's path check: the penetration fails it, a harmless edit
+    (2 mm up) passes it, and the genuine step with the inflated map still passes."""
+    res = _flat_sheet_on_the_ground(tmp_path)
+    k = 2
+    z0 = float(res.sequence.positions[res.steps["frame"][k]][0, 2])
+    A, b = res.steps["A"].copy(), res.steps["b"].copy()
+    A[k, 2, 2] += 1e15
+    b[k, 2] -= 1e15 * z0
+    inflated = {**res.steps, "A": A, "b": b}
+    assert applied_maps(inflated, res.groups, res.sequence).all()  # the same map on the data
+    d = res.steps["deformed"].copy()
+    d[k, 55, 2] += dz
+    forged = {**inflated, "deformed": d}
+    assert checks_mod._is_image(res.sequence.positions[res.steps["frame"][k]], d[k], A[k][None], b[k][None]) == (
+        True, True)  # within the inflated bound: loose
+    assert applied_maps(forged, res.groups, res.sequence)[k] == (not through)
+    assert recheck_certificates(forged, res.groups, res.sequence)[k] == (not through)
+
+
+def test_component_labels_must_be_the_scenes_components(tmp_path):
+    """One "component" per vertex with a translation each makes any state an image: a
+    sheet jittered by 1e-2 passed. The stored labels must be deform's own components."""
+    res = _flat_sheet_on_the_ground(tmp_path)
+    k, N, S = 2, res.sequence.n_vertices, res.n_steps
+    x = np.asarray(res.sequence.positions[res.steps["frame"][k]], dtype=np.float64)
+    d = res.steps["deformed"].copy()
+    d[k] += 1e-2 * np.random.default_rng(1).standard_normal(d[k].shape)
+    A, b = res.steps["A"].copy(), res.steps["b"].copy()
+    A[k], b[k] = np.nan, np.nan
+    cA, cb = np.full((S, N, 3, 3), np.nan), np.full((S, N, 3), np.nan)
+    cA[k], cb[k] = np.eye(3), d[k] - x
+    groups = {**res.groups, "component_maps": {"A": cA, "b": cb, "labels": np.arange(N)}}
+    forged = {**res.steps, "A": A, "b": b, "deformed": d}
+    assert not applied_maps(forged, groups, res.sequence)[k]
+    # deform's own labels (one component) with that component's true map: still the image
+    cA1, cb1 = np.full((S, 1, 3, 3), np.nan), np.full((S, 1, 3), np.nan)
+    cA1[k], cb1[k] = res.steps["A"][k], res.steps["b"][k]
+    honest = {**res.groups, "component_maps": {"A": cA1, "b": cb1, "labels": np.zeros(N, np.int64)}}
+    assert applied_maps({**res.steps, "A": A, "b": b}, honest, res.sequence)[k]
+
+
+def test_a_stored_margin_below_the_thickness_rule_is_not_trusted(tmp_path):
+    """``margin_required`` forged to 0 on a thickness result let a map squeezing the sheet to
+    2% pass (its certificate holds at margin 0, not at the thickness's 0.1)."""
+    res = _flat_sheet_on_the_ground(tmp_path, thickness=1e-4)
+    k = 2
+    x = np.asarray(res.sequence.positions[res.steps["frame"][k]], dtype=np.float64)
+    A, b, d = res.steps["A"].copy(), res.steps["b"].copy(), res.steps["deformed"].copy()
+    A[k] = np.diag([0.02, 1.0, 1.0])
+    b[k] = x.mean(axis=0) - A[k] @ x.mean(axis=0)
+    d[k] = x @ A[k].T + b[k]
+    forged = {**res.steps, "A": A, "b": b, "deformed": d, "margin_required": np.zeros(res.n_steps)}
+    assert recheck_certificates(res.steps, res.groups, res.sequence).all()
+    assert applied_maps(forged, res.groups, res.sequence)[k]
+    assert not recheck_certificates(forged, res.groups, res.sequence)[k]
