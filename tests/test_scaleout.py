@@ -183,14 +183,7 @@ def test_failed_task_names_file_and_frames(tmp_path, scheduler):
 
 
 def test_without_dask_one_line_and_exit_2(inputs, tmp_path, monkeypatch):
-    real_import = builtins.__import__
-
-    def no_dask(name, *args, **kw):
-        if name == "distributed" or name.startswith("dask"):
-            raise ImportError(f"No module named {name!r}")
-        return real_import(name, *args, **kw)
-
-    monkeypatch.setattr(builtins, "__import__", no_dask)
+    _no_dask(monkeypatch)
     r = CliRunner().invoke(main, ["deform", str(inputs), "-o", str(tmp_path / "out")])
     assert r.exit_code == 2
     assert "pip install 'penfree[dask]'" in r.output and len(r.output.strip().splitlines()) == 1

@@ -61,7 +61,7 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
     Each step s moves frame s toward the prediction 2 x^s - x^(s-1); the straight path
     to the deformed state is certified penetration-free (exact test) before it is written.
     """
-    from ..core.pipeline.deform import deform_sequence, deform_stats, result_attrs, summarize_steps
+    from ..core.pipeline.deform import deform_sequence, deform_stats, result_attrs
     from ..formats import check_outputs, input_files, read_sequence
     from ..formats.result import write_result
     from ..scaleout import is_long, is_scaleout
@@ -125,9 +125,14 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
                          weights=weights_name or ("weights" if seq.weights is not None else None),
                          **({"client_model": client_model} if client_model else {}))
     write_result(output_path, seq, result.steps, attrs, groups=groups, overwrite=overwrite)
-    elapsed = time.perf_counter() - t0
+    _finish(result.steps, seq, input_path, output_path, time.perf_counter() - t0, as_json)
 
-    summary = summarize_steps(result.steps)
+
+def _finish(steps, seq, input_path, output_path, elapsed, as_json):
+    """Print the run's summary (`summarize_steps` and the wall time), as JSON or text."""
+    from ..core.pipeline.deform import summarize_steps
+
+    summary = summarize_steps(steps)
     summary.update(output=output_path, input=input_path, wall_time_s=elapsed,
                    frames_per_s=summary["steps"] / elapsed if elapsed > 0 else None)
     if as_json:
@@ -140,7 +145,6 @@ def _deform_long(input_path, output_path, opts, overwrite, with_stats, as_json):
     """A serial run of a recording whose frames exceed `scaleout.plan.MAX_TASK_BYTES`: its
     frame ranges one after another in this process, merged as a scale-out run merges them
     (the same result; at most about that many bytes of frames held at a time)."""
-    from ..core.pipeline.deform import summarize_steps
     from ..formats import read_sequence
     from ..scaleout import deform_many
 
@@ -150,14 +154,7 @@ def _deform_long(input_path, output_path, opts, overwrite, with_stats, as_json):
     with Progress(n_steps, "deform") as bar:
         [(_, _, steps)] = deform_many([input_path], output_path, options=dict(opts, progress=bar),
                                       overwrite=overwrite, with_stats=with_stats, in_process=True)
-    elapsed = time.perf_counter() - t0
-    summary = summarize_steps(steps)
-    summary.update(output=output_path, input=input_path, wall_time_s=elapsed,
-                   frames_per_s=summary["steps"] / elapsed if elapsed > 0 else None)
-    if as_json:
-        echo_json(summary)
-        return
-    _print_summary(summary, head)
+    _finish(steps, head, input_path, output_path, time.perf_counter() - t0, as_json)
 
 
 def _n_frames(path) -> int:
