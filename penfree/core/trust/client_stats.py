@@ -98,7 +98,11 @@ def client_counts(positions, deformed, frames, *, edges=None, faces=None, dhat, 
             base = replay_step(x, x, x_pred, x_next, radius="step", **kw)
             out[f"passes_{tr}_baseline"][k], out[f"iterations_{tr}_baseline"][k] = base["passes"], base["iterations"]
             for rule in radii:
-                r = base if same else replay_step(x_def, x, x_pred, x_next, radius=rule, **kw)
+                # doing nothing replays as the baseline, except that rule own's warm start moves
+                # isotropically within the radii (ipctk's warm_start_time_step) where the
+                # baseline's (rule step) moves by the planar filter
+                copy = same and (rule == "step" or tr == "isotropic")
+                r = base if copy else replay_step(x_def, x, x_pred, x_next, radius=rule, **kw)
                 out[f"passes_{tr}_{rule}_deformed"][k] = r["passes"]
                 out[f"iterations_{tr}_{rule}_deformed"][k] = r["iterations"]
         if progress is not None:
