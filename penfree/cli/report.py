@@ -161,6 +161,10 @@ def _print_summary(doc, outdir):
                    f"projected speedup x{_fmt(p['speedup'], '.3f')} (f={sm['projected']['cd_share']:g}, "
                    f"T_frame={sm['projected']['frame_ms']:g} ms); "
                    f"certified: {'all' if rep['certificate']['all_certified'] else 'NOT ALL'}")
+        if rep.get("client"):
+            from ..report.client import client_headline
+
+            click.echo(f"  {label}: {client_headline(rep['client'])}")
         if rep.get("stats_note"):
             click.echo(f"  note [{label}]: {rep['stats_note']}")
     pl = doc["plots"]

@@ -36,6 +36,21 @@ def client_section(result, *, client="ipctk", truncation="both", radius="both", 
     }
 
 
+def client_headline(section) -> str:
+    """One line of a `client_section`'s totals, for the report's headline: the passes the
+    real client needs decide, not the static estimates (which `auto --client-model` does
+    not optimise, and which can disagree with them)."""
+    o, sm = section["options"], section["summary"]
+    parts = []
+    for tr in o["truncations"]:
+        row = sm[tr]
+        moved = ", ".join(f"{row[r]}" + (f" ({100 * row[f'{r}_change']:+.0f}%)" if row["baseline"] else "")
+                          + f" rule {r}" for r in o["radius_rules"])
+        parts.append(f"{tr} {row['baseline']} -> {moved}")
+    return (f"real-client CD passes ({o['client']}, summed over {sm['n_steps']} steps), baseline -> deformed: "
+            + "; ".join(parts))
+
+
 def client_markdown(section) -> str:
     """The Markdown table of a `client_section`."""
     o, sm = section["options"], section["summary"]

@@ -72,6 +72,12 @@ def _file_md(rep, label):
         opts.update({f"options.{k}": v for k, v in opts.pop("options").items()})
     if opts:
         out.append("Deform result attributes: " + ", ".join(f"`{k}={v}`" for k, v in sorted(opts.items())) + ".\n")
+    if rep.get("client"):
+        from .client import client_headline
+
+        out.append(f"**{client_headline(rep['client']).capitalize()}** (table below). These are the passes "
+                   "IPC Toolkit's trust region needs; the static estimates that follow hold the bounds fixed and "
+                   "can disagree with them.\n")
     out.append("### Summary: baseline vs deformed\n")
     out.append(f"*Projected* figures assume a CD share f = {_f(p['cd_share'])} of a baseline frame of "
                f"T_frame = {_f(p['frame_ms'])} ms, plus the median per-step fit time measured by deform "

@@ -86,6 +86,12 @@ def test_report_client_ipctk_table_and_plot(two_rods, tmp_path):
     iso = cl["summary"]["isotropic"]
     # From x: 3 passes a step (tests/core/test_client.py's hand count); from x_def = x_pred: 1.
     assert iso["baseline"] == 6 and iso["step"] == 2
-    assert "Real-client CD passes" in (out / "report.md").read_text()
+    md = (out / "report.md").read_text()
+    assert "Real-client CD passes" in md
+    # the headline leads with the real client's totals, in the printed summary and report.md alike
+    line = (f"real-client CD passes (ipctk, summed over 2 steps), baseline -> deformed: isotropic 6 -> "
+            f"2 (-67%) rule own, 2 (-67%) rule step; planar {cl['summary']['planar']['baseline']} -> ")
+    assert line in r.output and line.capitalize()[:60] in md
+    assert md.index(line.capitalize()[:60]) < md.index("### Summary: baseline vs deformed")
     if doc["plots"]["status"] == "written":
         assert os.path.exists(out / "d_client_passes.png")
