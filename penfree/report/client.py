@@ -2,8 +2,9 @@
 
 report.json gains, per file, ``client``: ``options`` (``client``, ``truncations``,
 ``radius_rules``, ``dhat``, ``every``, ``thickness``), ``summary`` (per truncation:
-``baseline``, ``step``/``own`` passes summed over the replayed steps, their
-``..._change`` fractions and the iteration totals; `client_stats.summarize_counts`)
+``baseline`` (rule step) and ``baseline_own`` (rule own), ``step``/``own`` passes
+summed over the replayed steps, their ``..._change`` fractions against their own
+rule's baseline and the iteration totals; `client_stats.summarize_counts`)
 and ``steps`` (the per-step arrays of `client_stats.client_counts` as lists).
 report.md gains a table per file and ``<stem>_client_passes.png``: passes per step,
 baseline against deformed, per truncation and radius rule, with the steps where
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.trust.client_stats import client_counts, expand, resolve_dhat, summarize_counts
+from ..core.trust.client_stats import client_counts, expand, resolve_dhat, rule_baseline, summarize_counts
 from ..core.trust.client import RADIUS_RULES, TRUNCATIONS
 
 
@@ -44,31 +45,36 @@ def client_headline(section) -> str:
     parts = []
     for tr in o["truncations"]:
         row = sm[tr]
-        moved = ", ".join(f"{row[r]}" + (f" ({100 * row[f'{r}_change']:+.0f}%)" if row["baseline"] else "")
-                          + f" rule {r}" for r in o["radius_rules"])
-        parts.append(f"{tr} {row['baseline']} -> {moved}")
+        parts.append(f"{tr} " + ", ".join(f"rule {r} {_change(row, r)}" for r in o["radius_rules"]))
     return (f"real-client CD passes ({o['client']}, summed over {sm['n_steps']} steps), baseline -> deformed: "
             + "; ".join(parts))
+
+
+def _change(row, rule) -> str:
+    """``"base -> n (+x%)"`` of one rule of a `summarize_counts` row."""
+    base = rule_baseline(row, rule)
+    return f"{base} -> {row[rule]}" + (f" ({100 * row[f'{rule}_change']:+.0f}%)" if base else "")
 
 
 def client_markdown(section) -> str:
     """The Markdown table of a `client_section`."""
     o, sm = section["options"], section["summary"]
     rules = o["radius_rules"]
-    head = ["truncation", "baseline passes"] + [f"x_def, rule {r}" for r in rules] + ["baseline iterations"] + \
-        [f"iterations, rule {r}" for r in rules]
+    head = ["truncation"] + [f"passes, rule {r}: baseline -> x_def" for r in rules] + \
+        [f"iterations, rule {r}: baseline -> x_def" for r in rules]
     rows = []
     for tr in o["truncations"]:
         row = sm[tr]
-        rows.append([tr, str(row["baseline"])]
-                    + [f"{row[r]} ({100 * row[f'{r}_change']:+.0f}%)" if row["baseline"] else str(row[r])
-                       for r in rules]
-                    + [str(row["iterations_baseline"])] + [str(row[f"iterations_{r}"]) for r in rules])
+        its = {"step": row["iterations_baseline"], "own": row.get("iterations_baseline_own")}
+        rows.append([tr] + [_change(row, r) for r in rules]
+                    + [f"{its[r]} -> {row[f'iterations_{r}']}" for r in rules])
     lines = ["### Real-client CD passes\n",
              f"`{o['client']}` (`ipctk.ogc.TrustRegion` replay), dhat {o['dhat']:.4g}, min distance "
              f"{o['thickness']:.4g}, every {o['every']} step(s), {sm['n_steps']} steps, summed. Rule `step`: the "
-             "simulator keeps the radius computed at x (the integration contract); rule `own`: ipctk's warm start "
-             "recomputes it from x_def.\n",
+             "simulator keeps the radius computed at x (the integration contract) and moves toward x_pred by the "
+             "truncation's filter; rule `own`: ipctk's warm start (`warm_start_time_step`) recomputes it from "
+             "x_def and moves isotropically within the radii. Each rule is compared with its own baseline "
+             "(from x).\n",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines) + "\n"
@@ -83,7 +89,11 @@ def client_plot(section, title):
         styles = {"isotropic": "-", "planar": "--"}
         for tr in o["truncations"]:
             ax.step(frames, st[f"passes_{tr}_baseline"], where="mid", color="0.4", ls=styles[tr], lw=4, alpha=0.4,
-                    label=f"baseline, {tr}")
+                    label=f"baseline rule step, {tr}")
+            own = st.get(f"passes_{tr}_own_baseline")
+            if own is not None and own != st[f"passes_{tr}_baseline"]:  # planar: another warm-start move
+                ax.step(frames, own, where="mid", color="tab:red", ls=styles[tr], lw=4, alpha=0.25,
+                        label=f"baseline rule own, {tr}")
             for rule, color in (("step", "tab:blue"), ("own", "tab:red")):
                 if rule in o["radius_rules"]:
                     ax.step(frames, st[f"passes_{tr}_{rule}_deformed"], where="mid", color=color, ls=styles[tr],

@@ -5,12 +5,21 @@ is a truncation, ``<rule>`` a radius rule):
 
 =====================================  =============================================
 ``frame``                              the step's frame index ``s`` (int64)
-``passes_<tr>_baseline``               CD passes from the recorded ``x`` (both radius
-``iterations_<tr>_baseline``           rules coincide there: the radius is x's own)
+``passes_<tr>_baseline``               CD passes from the recorded ``x`` under rule
+``iterations_<tr>_baseline``           ``step`` (the simulator's warm start, filtered
+                                       by the truncation)
+``passes_<tr>_own_baseline``           the same under rule ``own`` (ipctk's
+``iterations_<tr>_own_baseline``       ``warm_start_time_step``, whose move is
+                                       isotropic): with rule ``own`` only
 ``passes_<tr>_<rule>_deformed``        CD passes from ``x_def`` under the radius rule
 ``iterations_<tr>_<rule>_deformed``
 ``model``                              the map `deform` applied (``none`` = x_def is x)
 =====================================  =============================================
+
+Each rule is compared with its own baseline. From ``x`` both rules take the radius of
+``x``; under isotropic truncation their warm starts are the same move, under planar
+truncation they are not (rule ``step`` moves by the planar filter): on the cables
+sample, doing nothing needs 63 passes under rule step and 116 under rule own.
 
 Only steps with a next frame are replayed (the iterations go to ``x_next``), every
 ``every``-th of them.
@@ -81,6 +90,8 @@ def client_counts(positions, deformed, frames, *, edges=None, faces=None, dhat, 
     for tr in truncations:
         for key in ("passes", "iterations"):
             out[f"{key}_{tr}_baseline"] = np.zeros(len(pick), np.int64)
+            if "own" in radii:
+                out[f"{key}_{tr}_own_baseline"] = np.zeros(len(pick), np.int64)
             for rule in radii:
                 out[f"{key}_{tr}_{rule}_deformed"] = np.zeros(len(pick), np.int64)
     # the own client's queries shared by all replays (both truncations start from the same states)
@@ -95,14 +106,15 @@ def client_counts(positions, deformed, frames, *, edges=None, faces=None, dhat, 
         for tr in truncations:
             kw = dict(edges=edges, faces=faces, dhat=dhat, thickness=thickness, truncation=tr, client=client,
                       query=query)
-            base = replay_step(x, x, x_pred, x_next, radius="step", **kw)
-            out[f"passes_{tr}_baseline"][k], out[f"iterations_{tr}_baseline"][k] = base["passes"], base["iterations"]
+            base = {"step": replay_step(x, x, x_pred, x_next, radius="step", **kw)}
+            if "own" in radii:  # the same warm-start move as rule step's under isotropic truncation
+                base["own"] = base["step"] if tr == "isotropic" else replay_step(x, x, x_pred, x_next, radius="own",
+                                                                                 **kw)
+            for rule, b in base.items():
+                key = "baseline" if rule == "step" else "own_baseline"
+                out[f"passes_{tr}_{key}"][k], out[f"iterations_{tr}_{key}"][k] = b["passes"], b["iterations"]
             for rule in radii:
-                # doing nothing replays as the baseline, except that rule own's warm start moves
-                # isotropically within the radii (ipctk's warm_start_time_step) where the
-                # baseline's (rule step) moves by the planar filter
-                copy = same and (rule == "step" or tr == "isotropic")
-                r = base if copy else replay_step(x_def, x, x_pred, x_next, radius=rule, **kw)
+                r = base[rule] if same else replay_step(x_def, x, x_pred, x_next, radius=rule, **kw)
                 out[f"passes_{tr}_{rule}_deformed"][k] = r["passes"]
                 out[f"iterations_{tr}_{rule}_deformed"][k] = r["iterations"]
         if progress is not None:
@@ -111,18 +123,29 @@ def client_counts(positions, deformed, frames, *, edges=None, faces=None, dhat, 
 
 
 def summarize_counts(counts) -> dict:
-    """Totals over the replayed steps: ``{tr: {"baseline": n, rule: n, rule + "_change": fraction}}``."""
+    """Totals over the replayed steps: ``{tr: {"baseline": n, "baseline_own": n, rule: n,
+    rule + "_change": fraction}}``, each rule's change against its own baseline
+    (``baseline`` is rule step's; ``baseline_own`` with rule own only)."""
     out = {"n_steps": int(len(counts["frame"]))}
-    for key in counts:
-        if key.startswith("passes_") and key.endswith("_baseline"):
-            tr = key[len("passes_"):-len("_baseline")]
-            base = int(counts[key].sum())
-            row = {"baseline": base, "iterations_baseline": int(counts[f"iterations_{tr}_baseline"].sum())}
-            for rule in RADIUS_RULES:
-                k = f"passes_{tr}_{rule}_deformed"
-                if k in counts:
-                    row[rule] = int(counts[k].sum())
-                    row[f"{rule}_change"] = (row[rule] - base) / base if base else float("nan")
-                    row[f"iterations_{rule}"] = int(counts[f"iterations_{tr}_{rule}_deformed"].sum())
-            out[tr] = row
+    for tr in TRUNCATIONS:
+        if f"passes_{tr}_baseline" not in counts:
+            continue
+        row = {"baseline": int(counts[f"passes_{tr}_baseline"].sum()),
+               "iterations_baseline": int(counts[f"iterations_{tr}_baseline"].sum())}
+        if f"passes_{tr}_own_baseline" in counts:
+            row["baseline_own"] = int(counts[f"passes_{tr}_own_baseline"].sum())
+            row["iterations_baseline_own"] = int(counts[f"iterations_{tr}_own_baseline"].sum())
+        for rule in RADIUS_RULES:
+            k = f"passes_{tr}_{rule}_deformed"
+            if k in counts:
+                base = row["baseline" if rule == "step" else "baseline_own"]
+                row[rule] = int(counts[k].sum())
+                row[f"{rule}_change"] = (row[rule] - base) / base if base else float("nan")
+                row[f"iterations_{rule}"] = int(counts[f"iterations_{tr}_{rule}_deformed"].sum())
+        out[tr] = row
     return out
+
+
+def rule_baseline(row, rule) -> int:
+    """The baseline total a rule's change in a `summarize_counts` row is measured against."""
+    return row["baseline" if rule == "step" else "baseline_own"]

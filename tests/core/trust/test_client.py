@@ -96,7 +96,8 @@ def test_client_counts_identity_replays_each_rule(sample_sequence, client):
     itself; rule own is ipctk's warm start, whose move is isotropic within the radii, so
     it equals the baseline under isotropic truncation only (under planar the baseline's
     warm-start move is the planar filter). The own column was the baseline's copy under
-    both truncations: 898 passes where ipctk's own rule needs 883 (audit, 12-05)."""
+    both truncations (898 passes where ipctk's own rule needs 883, audit 12-05); each
+    rule is now compared with its own baseline, so doing nothing is a 0% change."""
     seq = sample_sequence
     frames = np.arange(1, 6)
     counts = client_counts(seq.positions, seq.positions[frames], frames, edges=seq.edges, dhat=seq.thickness,
@@ -108,10 +109,13 @@ def test_client_counts_identity_replays_each_rule(sample_sequence, client):
                            seq.positions[s + 1], edges=seq.edges, dhat=seq.thickness, thickness=seq.thickness,
                            truncation=tr, radius="own", client=client)["passes"] for s in (1, 3, 5)]
         np.testing.assert_array_equal(counts[f"passes_{tr}_own_deformed"], own)
+        np.testing.assert_array_equal(counts[f"passes_{tr}_own_baseline"], own)  # rule own's own baseline
         if tr == "isotropic":
             np.testing.assert_array_equal(own, counts[f"passes_{tr}_baseline"])
     sm = summarize_counts(counts)
-    assert sm["isotropic"]["step_change"] == 0.0 and sm["n_steps"] == 3
+    assert sm["n_steps"] == 3
+    for tr in ("isotropic", "planar"):  # doing nothing changes nothing, under either rule
+        assert sm[tr]["step_change"] == 0.0 and sm[tr]["own_change"] == 0.0, sm[tr]
 
 
 @pytest.mark.parametrize("truncation", ["isotropic", "planar"])
