@@ -68,15 +68,19 @@ def test_expand_inputs(inputs, tmp_path):
 
 
 @pytest.mark.parametrize("kind, frames", [("sequence", None), ("sequence", (5, 30)), ("path", None),
-                                          ("sequence", (-20, None))])
+                                          ("sequence", (-20, None)), ("path", (5, 30)), ("path", (-20, None))])
 def test_plan_covers_every_step_once(kind, frames):
+    """Ranges cover the selected steps once; a raw sequence verified with a frame slice is
+    cut in ranges too (its steps whose two frames are selected): it was one task, which
+    read a long recording whole."""
     path = str(SAMPLES / "rods.h5")
     T = 48
     tasks = plan([path], 3, frames, kind)
     assert len(tasks) > 1
     steps = np.arange(1, T) if kind == "sequence" else np.arange(0, T - 1)
     if frames is not None:
-        steps = steps[np.isin(steps, np.arange(T)[slice(*frames)])]
+        sel = np.arange(T)[slice(*frames)]
+        steps = steps[np.isin(steps, sel) & (np.isin(steps + 1, sel) if kind == "path" else True)]
     covered = np.concatenate([np.arange(t.lo, t.hi) for t in tasks])
     np.testing.assert_array_equal(covered, steps)
 
@@ -475,3 +479,59 @@ def test_result_read_in_a_window_equals_the_same_rows_of_a_whole_read(tmp_path):
 
     with pytest.raises(FormatError, match=rf"step {k_in} \(frame {int(full.steps['frame'][k_in])}\) holds NaN"):
         read_result(out, window=(4, 9))
+
+
+def test_window_reads_only_its_rows_of_per_vertex_datasets(tmp_path, monkeypatch):
+    """`read_result(window=...)` read every per-step dataset whole, the ``--per-vertex``
+    residuals (S, N) too: a long verify range task read them all. Now only the window's
+    rows of those, equal to the whole read's."""
+    from penfree.formats.result import read_result
+
+    path = _cloth_over_a_rising_plate(tmp_path / "in.h5")
+    out = str(tmp_path / "out.h5")
+    assert CliRunner().invoke(main, ["deform", path, "-o", out, "--per-vertex"]).exit_code == 0
+    full = read_result(out)
+    names = [k for k in full.steps if k.endswith("per_vertex")]
+    assert names
+    reads, real = [], h5py.Dataset.__getitem__
+
+    def spy(ds, sel):
+        reads.append((ds.name, sel))
+        return real(ds, sel)
+
+    monkeypatch.setattr(h5py.Dataset, "__getitem__", spy)
+    part = read_result(out, window=(4, 9))
+    rows = np.flatnonzero((full.steps["frame"] >= 4) & (full.steps["frame"] < 9))
+    for k in names:
+        np.testing.assert_array_equal(part.steps[k], full.steps[k][rows])
+        got = [sel for name, sel in reads if name == f"/steps/{k}"]
+        assert len(got) == 1 and isinstance(got[0], np.ndarray), (k, got)
+    assert part.rows.tolist() == rows.tolist()
+
+
+def test_window_reads_name_the_files_steps_and_frame_counts(tmp_path):
+    """Messages of a frame window's read name the file's step and frame count: a per-component
+    step without finite maps (it named the window's row), a per-frame obstacle with the wrong
+    number of frames (it named the window's count)."""
+    from penfree.core.pipeline.verification import verify_file
+    from penfree.formats import read_sequence
+
+    out = str(tmp_path / "pc.h5")
+    assert CliRunner().invoke(main, ["deform", str(SAMPLES / "carried_stack.h5"), "-o", out, "--model",
+                                     "per-component", "--frames", "0:14"]).exit_code == 0
+    with h5py.File(out, "r+") as f:
+        k = int(np.flatnonzero(f["steps/frame"][()] == 10)[0])
+        A = f["component_maps/A"][k]
+        A[0] = np.nan
+        f["component_maps/A"][k] = A
+    for window in (None, (8, 13)):
+        with pytest.raises(InputError, match=rf"steps/A of step {k} is not finite"):
+            verify_file(out, window=window)
+    path = _cloth_over_a_rising_plate(tmp_path / "in.h5")
+    with h5py.File(path, "r+") as f:
+        P = f["obstacles/plate/positions"][()]
+        del f["obstacles/plate/positions"]
+        f["obstacles/plate/positions"] = P[:-1]
+    for window in (None, (0, 2), (4, 9)):
+        with pytest.raises(InputError, match=r"obstacle positions must be \(12, M, 3\) or \(M, 3\); got \(11, 4, 3\)"):
+            read_sequence(path, frame_window=window)

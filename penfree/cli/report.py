@@ -114,7 +114,7 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
             raise InputError("--client is not supported with --workers or --scheduler")
         # A stored stats/ group is a cache for reading; a CI check never trusts it.
         opts = dict(frames=frame_slice, cd_share=cd_share, frame_ms=frame_ms, replay=replay, ladder=not no_ladder,
-                    use_stored_stats=not ci)
+                    use_stored_stats=not ci, verify_paths=fail_if_uncertified)
         files, reports = scaleout.report_entries(files, opts, workers=workers, scheduler=scheduler, threads=threads)
     for path, res in zip(files, results if not scale else ()):
         work = res.n_steps * ((ci or stored_stats(res, replay) is None) + (not no_ladder)) + (
@@ -122,7 +122,7 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
         with Progress(work, f"report {os.path.basename(path)}") as bar:
             reports.append(make_file_report(path, res, cd_share=cd_share, frame_ms=frame_ms, replay=replay,
                                             ladder=not no_ladder, progress=bar, client=client_opts,
-                                            use_stored_stats=not ci))
+                                            use_stored_stats=not ci, verify_paths=fail_if_uncertified))
     checks = run_checks(reports, fail_if_uncertified=fail_if_uncertified, min_speedup=min_speedup,
                         min_hit_rate_gain=min_hit_rate_gain, baseline=baseline, max_regression=max_regression,
                         baseline_name=baseline_path)

@@ -265,8 +265,12 @@ def _read_obstacle(g, path, name, where, window=None, T=None) -> Obstacle:
         pos = ds[()]
         if pos.shape[-1] != 3 or pos.dtype.kind not in "fiu":
             raise FormatError(f"{ds_name} must be (T, M, 3) or (M, 3) float; got {pos.shape} {pos.dtype} in {where}:/{ds_name}")
-    else:  # per frame: the sequence's window, when it has the sequence's T frames (else validation says so)
-        pos = read_positions(ds, where, ds_name, window if ds.ndim and ds.shape[0] == T else None)
+    else:  # per frame: the sequence's window of its T frames
+        if window is not None and not (ds.ndim == 3 and ds.shape[0] == T and ds.shape[2] == 3):
+            # `Sequence.validate`'s message, with the file's frame count (not the window's)
+            raise InputError(f"obstacle positions must be ({T}, M, 3) or (M, 3); got {ds.shape} "
+                             f"in {where}:/obstacles/{name}/positions")
+        pos = read_positions(ds, where, ds_name, window)
     return Obstacle(
         name=name,
         positions=pos,

@@ -69,6 +69,8 @@ class DeformResult:
     groups : dict of str -> dict of str -> ndarray
         Further groups (``stats``, ``selection``, ...); nested groups become nested dicts.
     origin : str
+    rows : (S,) int64 or None
+        A frame window's read (`read_result`): each step's row in the file, for messages.
     """
 
     sequence: Sequence
@@ -76,6 +78,7 @@ class DeformResult:
     attrs: dict = field(default_factory=dict)
     groups: dict = field(default_factory=dict)
     origin: str = "<memory>"
+    rows: np.ndarray | None = None
 
     @property
     def n_steps(self) -> int:
@@ -139,7 +142,7 @@ def _check_steps(steps: dict, T: int, N: int, where: str, require=()) -> int:
             raise FormatError(f"steps/{key} must be {shape}; got {got} in {where}:/steps/{key}")
     for key, value in steps.items():
         if key in NUMERIC_STEPS or key.startswith(NUMERIC_PREFIXES):
-            dtype = value.dtype if isinstance(value, Frames) else np.asarray(value).dtype
+            dtype = value.dtype if isinstance(value, (Frames, h5py.Dataset)) else np.asarray(value).dtype
             if dtype.kind not in "iuf":
                 raise FormatError(f"steps/{key} must be numeric; got {dtype} in {where}:/steps/{key}")
         elif key in TEXT_STEPS and np.asarray(value).dtype.kind not in "USO":
@@ -240,7 +243,9 @@ def write_result(path, seq: Sequence, steps: dict, attrs: dict, groups: dict | N
 
 # --- reading -----------------------------------------------------------------
 
-def _read_group(g, where, skip_deformed=False) -> dict:
+def _read_group(g, where, skip_deformed=False, lazy=None) -> dict:
+    """The datasets of `g` as arrays (nested groups as dicts); `lazy(ds)` True keeps a
+    dataset open, unread (a frame window's read takes its rows later)."""
     out = {}
     for key, obj in g.items():
         if obj is None:
@@ -249,6 +254,8 @@ def _read_group(g, where, skip_deformed=False) -> dict:
             out[key] = _read_group(obj, where)
         elif skip_deformed and key == "deformed":
             continue
+        elif lazy is not None and lazy(obj):
+            out[key] = obj
         elif h5py.check_string_dtype(obj.dtype) is not None:
             out[key] = np.asarray(obj.asstr()[()]).astype(str)
         else:
@@ -305,7 +312,9 @@ def read_result(path, require=(), window=None) -> DeformResult:
             raise FormatError(f"{where} is not a deform result; missing dataset steps/frame in {where}:/steps/frame")
         seq = read_from_h5(f, where, window)
         seq.validate()
-        steps = _read_group(g, where, skip_deformed=True)
+        # a window's read leaves the per-vertex datasets (S, N, ...) to take their rows
+        lazy = None if window is None else (lambda ds: ds.ndim >= 2 and ds.shape[1] == seq.n_vertices)
+        steps = _read_group(g, where, skip_deformed=True, lazy=lazy)
         frame = steps.get("frame")
         usable = frame is not None and np.ndim(frame) == 1 and np.asarray(frame).dtype.kind in "iu"
         attrs = read_attrs(f, where)
@@ -317,9 +326,10 @@ def read_result(path, require=(), window=None) -> DeformResult:
             S = _check_steps(steps, seq.n_frames, seq.n_vertices, where, require=tuple(require))
             _check_groups(groups, S, where)
         else:
-            steps, groups = _window_steps(f, g, steps, groups, window, where, tuple(require), seq.n_vertices)
+            steps, groups, rows = _window_steps(f, g, steps, groups, window, where, tuple(require), seq.n_vertices)
     steps["frame"] = steps["frame"].astype(np.int64)
-    return DeformResult(sequence=seq, steps=steps, attrs=attrs, groups=groups, origin=where)
+    return DeformResult(sequence=seq, steps=steps, attrs=attrs, groups=groups, origin=where,
+                        rows=None if window is None else rows)
 
 
 def _window_steps(f, g, steps, groups, window, where, require, N):
@@ -337,7 +347,9 @@ def _window_steps(f, g, steps, groups, window, where, require, N):
     start, stop = frame_window(window, T, where)
     frame = np.asarray(steps["frame"], dtype=np.int64)
     rows = np.flatnonzero((frame >= start) & (frame < stop))
-    out = {k: np.asarray(v)[rows] for k, v in steps.items() if k != "deformed" and not isinstance(v, dict)}
+    # (h5py reads the rows of an open dataset only: `rows` ascend)
+    out = {k: v[rows] if isinstance(v, h5py.Dataset) else np.asarray(v)[rows]
+           for k, v in steps.items() if k != "deformed" and not isinstance(v, dict)}
     out["frame"] = frame[rows] - start
     if "deformed" in steps:
         stored = steps["deformed"]
@@ -352,7 +364,7 @@ def _window_steps(f, g, steps, groups, window, where, require, N):
     stats = groups.get("stats")
     if isinstance(stats, dict) and isinstance(stats.get("frame"), np.ndarray) and stats["frame"].dtype.kind in "iu":
         stats["frame"] = stats["frame"].astype(np.int64) - start
-    return out, groups
+    return out, groups, rows
 
 
 def _step_rows(content, rows, S):

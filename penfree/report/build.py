@@ -113,8 +113,10 @@ def worst_steps(stats, n=WORST_STEPS) -> list:
 
 
 def build_file_report(path, result, stats, *, ladder=None, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAULT_FRAME_MS,
-                      stats_source="computed") -> dict:
-    """The report entry of one result file (see the module key reference)."""
+                      stats_source="computed", verify_paths=False) -> dict:
+    """The report entry of one result file (see the module key reference); with
+    `verify_paths`, a step counts as certified only if verify's check of its path passes
+    too (`path_verdicts`)."""
     seq, steps = result.sequence, result.steps
     per_step = {k: v for k, v in stats.items() if not k.startswith("r_hist_")}
     for k in ("certificate_margin", "model", "projection", "time_fit_s"):
@@ -127,6 +129,13 @@ def build_file_report(path, result, stats, *, ladder=None, cd_share=DEFAULT_CD_S
             hist[f"{t}_{s}"] = np.nansum(h, axis=0) if h.size else np.zeros(R_HIST_EDGES.size - 1)
     lad = None if ladder is None else {k: v for k, v in ladder.items() if k != "steps"}
     applied = applied_maps(steps, result.groups, seq)
+    rechecked = recheck_certificates(steps, result.groups, seq, applied)
+    path_ok = path_verdicts(result) if verify_paths else None
+    certificate = certificate_summary(steps, rechecked if path_ok is None else rechecked & path_ok, seq,
+                                      applied=applied)
+    if path_ok is not None:
+        certificate.update(path_checked=True, n_path_failed=int(np.count_nonzero(~path_ok)),
+                           path_failed_frames=np.asarray(steps["frame"])[~path_ok].tolist())
     return {
         "file": os.fspath(path),
         "name": os.path.basename(os.fspath(path)),
@@ -136,13 +145,25 @@ def build_file_report(path, result, stats, *, ladder=None, cd_share=DEFAULT_CD_S
         "deform_options": dict(result.attrs),
         "stats_source": stats_source,
         "summary": summarize(stats, steps, cd_share=cd_share, frame_ms=frame_ms),
-        "certificate": certificate_summary(steps, recheck_certificates(steps, result.groups, seq, applied), seq,
-                                           applied=applied),
+        "certificate": certificate,
         "worst_steps": worst_steps(stats),
         "steps": per_step,
         "r_hist": hist,
         "ladder": lad,
     }
+
+
+def path_verdicts(result) -> np.ndarray:
+    """(S,) bool: verify's verdict on each step's path (`verify_result`, mode auto, the
+    result's thickness and obstacles). A certificate proves one map's path free of new
+    intersections within the scene only: obstacles, the pairs between components that
+    per-component maps move apart or together, and at a thickness the pairs that start
+    within ``thickness / m`` are verify's to check (a map that is the identity plus a
+    translation through the ground is certified)."""
+    from ..core.pipeline.verification import verify_result
+
+    ok = {st.frame: st.ok for st in verify_result(result).steps}
+    return np.array([ok.get(int(f), False) for f in np.asarray(result.steps["frame"])], dtype=bool)
 
 
 #: Per-step datasets a report needs beyond those every reader needs.
@@ -252,7 +273,7 @@ def _stats_differ(stored, computed) -> list:
 
 
 def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAULT_FRAME_MS, replay=False,
-                     ladder=True, progress=None, client=None, use_stored_stats=True) -> dict:
+                     ladder=True, progress=None, client=None, use_stored_stats=True, verify_paths=False) -> dict:
     """Statistics (read or computed), model ladder and the report entry of one result.
 
     Parameters
@@ -276,6 +297,9 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
         Take a usable ``stats/`` group as a cache. False (whenever a CI check is asked
         for: a forged group must not pass it) computes the statistics from the positions
         and deformed states, and notes a stored group that differs.
+    verify_paths : bool
+        A step is certified only if verify's check of its path passes too
+        (`path_verdicts`; ``--fail-if-uncertified``).
     """
     stats, note = stored_stats_checked(result, replay)
     if note is not None:
@@ -299,7 +323,7 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
                            projection=projection, replay=replay, progress=progress,
                            contact_radius=seq.contact_radius)
     rep = build_file_report(path, result, stats, ladder=lad, cd_share=cd_share, frame_ms=frame_ms,
-                            stats_source=source)
+                            stats_source=source, verify_paths=verify_paths)
     if note is not None:
         rep["stats_note"] = note
     if client:

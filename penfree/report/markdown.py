@@ -75,7 +75,8 @@ def _file_md(rep, label):
     if rep.get("client"):
         from .client import client_headline
 
-        out.append(f"**{client_headline(rep['client']).capitalize()}** (table below). These are the passes "
+        line = client_headline(rep["client"])
+        out.append(f"**{line[:1].upper() + line[1:]}** (table below). These are the passes "
                    "IPC Toolkit's trust region needs; the static estimates that follow hold the bounds fixed and "
                    "can disagree with them.\n")
     out.append("### Summary: baseline vs deformed\n")

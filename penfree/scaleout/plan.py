@@ -178,8 +178,8 @@ def plan(paths, n_workers, frames=None, kind="sequence") -> list:
     most about that much of frames and deformed states (a whole-file task would read it
     whole; a range task reads only the frames of its steps).
 
-    With a user frame slice, ranges are cut inside the selected steps; a raw sequence
-    to verify with a frame slice stays one task (its steps need both frames selected).
+    With a user frame slice, ranges are cut inside the selected steps (of a raw sequence to
+    verify, the steps whose two frames are selected).
     """
     want = TASKS_PER_WORKER * max(1, n_workers)
     per_file = max(1, math.ceil(want / max(1, len(paths))))
@@ -187,10 +187,9 @@ def plan(paths, n_workers, frames=None, kind="sequence") -> list:
     for p in paths:
         T, steps, frame_bytes = _steps_of(p, kind)
         if steps is not None and frames is not None:
-            if kind == "path":
-                steps = None
-            else:
-                steps = steps[np.isin(steps, np.arange(T)[slice(*frames)])]
+            sel = np.arange(T)[slice(*frames)]
+            # a raw sequence's step s -> s + 1 needs both frames selected
+            steps = steps[np.isin(steps, sel) & (np.isin(steps + 1, sel) if kind == "path" else True)]
         # a whole-file task reads every frame: a large file goes in ranges of bounded size
         big = steps is not None and T * frame_bytes > MAX_TASK_BYTES
         parts = per_file

@@ -61,7 +61,8 @@ def report_task(task, options, threads):
     res = select_steps(open_result(task.path), options["frames"])
     return make_file_report(task.path, res, cd_share=options["cd_share"], frame_ms=options["frame_ms"],
                             replay=options["replay"], ladder=options["ladder"],
-                            use_stored_stats=options.get("use_stored_stats", True))
+                            use_stored_stats=options.get("use_stored_stats", True),
+                            verify_paths=options.get("verify_paths", False))
 
 
 def report_many(specs, *, options, workers=None, scheduler=None, threads=None, progress=None, on_total=None):

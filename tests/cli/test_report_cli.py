@@ -1,9 +1,10 @@
 """``penfree report``: files written, exit codes of the CI checks, unusable input."""
 
-import os
 import json
 import math
+import os
 
+import h5py
 import numpy as np
 import pytest
 from _report_docs import set_in_entry
@@ -472,3 +473,56 @@ def test_client_options_without_client_exit_2(cli, result, tmp_path, opt):
     r = cli("report", result, "-o", out, "--no-ladder", *opt)
     assert r.exit_code == 2 and f"{opt[0]} applies only to the real-client replay" in r.stderr, r.output
     assert not out.exists()
+
+
+def _forged_through_the_ground(f):
+    # step 3: A = I and b one unit into the ground half-space, deformed its exact image
+    s = int(f["steps/frame"][3])
+    n = f["obstacles/ground/normal"][()]
+    b = -n / np.linalg.norm(n)
+    f["steps/A"][3], f["steps/b"][3] = np.eye(3), b
+    f["steps/deformed"][3] = (f["positions"][s].astype(np.float64) + b).astype(f["steps/deformed"].dtype)
+
+
+def _forged_components_into_each_other(f):
+    # step 3: component 0's map a translation onto component 1 (certified), deformed its exact image
+    from penfree.core.pipeline.components import component_labels
+
+    s = int(f["steps/frame"][3])
+    x = f["positions"][s].astype(np.float64)
+    lab = component_labels(x.shape[0], None, f["faces"][()], f["components"][()])
+    A, b = f["component_maps/A"][3], f["component_maps/b"][3]
+    A[0], b[0] = np.eye(3), x[lab == 1].mean(axis=0) - x[lab == 0].mean(axis=0)
+    f["component_maps/A"][3], f["component_maps/b"][3] = A, b
+    f["steps/deformed"][3] = (np.einsum("nij,nj->ni", A[lab], x) + b[lab]).astype(f["steps/deformed"].dtype)
+
+
+@pytest.mark.parametrize("sample, model, forge", [
+    ("cloth_drape_box", "affine", _forged_through_the_ground),
+    ("carried_stack", "per-component", _forged_components_into_each_other),
+], ids=["through-the-ground", "components-into-each-other"])
+def test_fail_if_uncertified_runs_verify_on_every_path(cli, tmp_path, sample, model, forge):
+    """A certificate proves one map's path free of new intersections within the scene; a
+    translation through the ground, or two components' certified maps moving them into each
+    other, with deformed their exact images, were "certified: all" (exit 0). With
+    --fail-if-uncertified a step now also needs verify's check of its path; the genuine
+    result still passes."""
+    import shutil
+
+    from _samples import SAMPLES
+
+    genuine = tmp_path / "genuine.h5"
+    assert cli("deform", SAMPLES / f"{sample}.h5", "-o", genuine, "--model", model, "--frames", "0:8").exit_code == 0
+    r = cli("report", genuine, "-o", tmp_path / "rep0", "--no-ladder", "--no-plots", "--fail-if-uncertified")
+    assert r.exit_code == 0, r.output
+    cert = json.loads((tmp_path / "rep0" / "report.json").read_text())["files"][0]["certificate"]
+    assert cert["path_checked"] and cert["n_path_failed"] == 0
+    forged = tmp_path / "forged.h5"
+    shutil.copy(genuine, forged)
+    with h5py.File(forged, "r+") as f:
+        frame = int(f["steps/frame"][3])
+        forge(f)
+    r = cli("report", forged, "-o", tmp_path / "rep", "--no-ladder", "--no-plots", "--fail-if-uncertified")
+    assert r.exit_code == 1, r.output
+    assert f"verify's check of the path fails at 1 step(s), frames [{frame}]" in r.output, r.output
+    assert cli("verify", forged).exit_code == 1

@@ -240,12 +240,13 @@ def _component_maps(res, k):
     A = comp.get("A") if isinstance(comp, dict) else None
     A = None if A is None or isinstance(A, dict) else np.asarray(A)
     S = len(res.steps["frame"])
+    row = k if res.rows is None else int(res.rows[k])  # the file's row (a frame window's read)
     if A is None or A.dtype.kind not in "iuf" or A.ndim != 4 or A.shape[0] != S or A.shape[2:] != (3, 3):
         got = "nothing" if A is None else f"{A.shape} {A.dtype}"
-        raise InputError(f"steps/A of step {k} is NaN (a per-component step): component_maps/A must be "
+        raise InputError(f"steps/A of step {row} is NaN (a per-component step): component_maps/A must be "
                          f"({S}, C, 3, 3) numeric; got {got} in {where}")
     if not np.isfinite(A[k]).all():
-        raise InputError(f"steps/A of step {k} is not finite and no finite per-component maps were found in {where}")
+        raise InputError(f"steps/A of step {row} is not finite and no finite per-component maps were found in {where}")
     return list(np.unique(A[k].astype(np.float64), axis=0))
 
 
