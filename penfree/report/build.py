@@ -130,12 +130,14 @@ def build_file_report(path, result, stats, *, ladder=None, cd_share=DEFAULT_CD_S
     lad = None if ladder is None else {k: v for k, v in ladder.items() if k != "steps"}
     applied = applied_maps(steps, result.groups, seq)
     rechecked = recheck_certificates(steps, result.groups, seq, applied)
-    path_ok = path_verdicts(result) if verify_paths else None
+    path_ok, why = path_verdicts(result) if verify_paths else (None, None)
     certificate = certificate_summary(steps, rechecked if path_ok is None else rechecked & path_ok, seq,
                                       applied=applied)
     if path_ok is not None:
         certificate.update(path_checked=True, n_path_failed=int(np.count_nonzero(~path_ok)),
                            path_failed_frames=np.asarray(steps["frame"])[~path_ok].tolist())
+        if why is not None:
+            certificate["path_check_error"] = why
     return {
         "file": os.fspath(path),
         "name": os.path.basename(os.fspath(path)),
@@ -153,17 +155,25 @@ def build_file_report(path, result, stats, *, ladder=None, cd_share=DEFAULT_CD_S
     }
 
 
-def path_verdicts(result) -> np.ndarray:
-    """(S,) bool: verify's verdict on each step's path (`verify_result`, mode auto, the
-    result's thickness and obstacles). A certificate proves one map's path free of new
-    intersections within the scene only: obstacles, the pairs between components that
-    per-component maps move apart or together, and at a thickness the pairs that start
-    within ``thickness / m`` are verify's to check (a map that is the identity plus a
-    translation through the ground is certified)."""
-    from ..core.pipeline.verification import verify_result
+def path_verdicts(result) -> tuple:
+    """``(ok (S,) bool, error)``: verify's verdict on each step's path (`verify_result`,
+    mode auto, the result's thickness and obstacles), or all False and verify's message
+    when it cannot check the file (e.g. per-component steps without usable maps).
 
-    ok = {st.frame: st.ok for st in verify_result(result).steps}
-    return np.array([ok.get(int(f), False) for f in np.asarray(result.steps["frame"])], dtype=bool)
+    A certificate proves one map's path free of new intersections within the scene only:
+    obstacles, the pairs between components that per-component maps move apart or
+    together, and at a thickness the pairs that start within ``thickness / m`` are
+    verify's to check (a map that is the identity plus a translation through the ground
+    is certified)."""
+    from ..core.pipeline.verification import verify_result
+    from ..errors import InputError
+
+    frames = np.asarray(result.steps["frame"])
+    try:
+        ok = {st.frame: st.ok for st in verify_result(result).steps}
+    except InputError as exc:
+        return np.zeros(frames.size, dtype=bool), str(exc)
+    return np.array([ok.get(int(f), False) for f in frames], dtype=bool), None
 
 
 #: Per-step datasets a report needs beyond those every reader needs.

@@ -313,7 +313,9 @@ def _certified_message(c):
     if c.get("n_not_applied"):
         msg += (f"; steps/deformed is not the image A x + b of the stored map at {c['n_not_applied']} step(s), "
                 f"frames {c['not_applied_frames'][:10]}")
-    if c.get("n_path_failed"):
+    if c.get("path_check_error"):
+        msg += f"; verify cannot check the paths: {c['path_check_error']}"
+    elif c.get("n_path_failed"):
         msg += (f"; verify's check of the path fails at {c['n_path_failed']} step(s), frames "
                 f"{c['path_failed_frames'][:10]} (penfree verify names the pairs)")
     return msg
