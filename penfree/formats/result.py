@@ -35,7 +35,7 @@ from ..constants import FORMAT_VERSION
 from ..errors import FormatError, InputError
 from ..sequence import Sequence
 from .atomic import atomic_file
-from .frames import Frames, StoredFrames
+from .frames import Frames
 from .hdf5 import (frame_window, has_h5_magic, open_h5, read_attrs, read_from_h5, write_attrs, write_positions,
                    write_to_h5)
 
@@ -263,14 +263,21 @@ def _read_group(g, where, skip_deformed=False, lazy=None) -> dict:
     return out
 
 
-def _read_deformed(ds, where, frame=None) -> np.ndarray:
+def _check_deformed(ds, where) -> np.dtype:
+    """The native dtype of a stored ``steps/deformed``; FormatError unless (S, N, 3) float."""
     dt = np.dtype(ds.dtype)
     if dt.kind != "f" or ds.ndim != 3:
         raise FormatError(f"steps/deformed must be (S, N, 3) float; got {ds.shape} {dt} in {where}:/steps/deformed")
-    out = np.empty(ds.shape, dtype=dt.newbyteorder("="))
-    for k in range(ds.shape[0]):
-        out[k] = ds[k]
-        if not np.isfinite(out[k]).all():
+    return dt.newbyteorder("=")
+
+
+def _read_deformed(ds, where, frame=None, rows=None) -> np.ndarray:
+    """The stored deformed states (the steps `rows` of them, all by default), each checked finite."""
+    rows = range(ds.shape[0]) if rows is None else rows
+    out = np.empty((len(rows),) + ds.shape[1:], dtype=_check_deformed(ds, where))
+    for i, k in enumerate(rows):
+        out[i] = ds[k]
+        if not np.isfinite(out[i]).all():
             at = f" (frame {int(frame[k])})" if frame is not None and k < np.size(frame) else ""
             raise FormatError(f"steps/deformed must be finite; step {k}{at} holds NaN or Inf in {where}:/steps/deformed")
     return out
@@ -336,12 +343,9 @@ def _window_steps(f, g, steps, groups, window, where, require, N):
     """The steps of `read_result`'s frame window: the whole tables validated (the stored
     ``deformed`` by shape and dtype), then the window's rows, ``frame`` less its start."""
     T = f["positions"].shape[0]
-    if "deformed" in g:
-        ds = g["deformed"]
-        if np.dtype(ds.dtype).kind != "f" or ds.ndim != 3:
-            raise FormatError(f"steps/deformed must be (S, N, 3) float; got {ds.shape} {ds.dtype} "
-                              f"in {where}:/steps/deformed")
-        steps["deformed"] = StoredFrames(ds, where, "steps/deformed")
+    if "deformed" in g:  # validated by shape and dtype, unread
+        _check_deformed(g["deformed"], where)
+        steps["deformed"] = g["deformed"]
     S = _check_steps(steps, T, N, where, require=require)
     _check_groups(groups, S, where)
     start, stop = frame_window(window, T, where)
@@ -352,14 +356,7 @@ def _window_steps(f, g, steps, groups, window, where, require, N):
            for k, v in steps.items() if k != "deformed" and not isinstance(v, dict)}
     out["frame"] = frame[rows] - start
     if "deformed" in steps:
-        stored = steps["deformed"]
-        out["deformed"] = np.empty((rows.size, N, 3), dtype=stored.dtype)
-        for i, k in enumerate(rows):
-            try:
-                out["deformed"][i] = stored.frame(k)
-            except InputError:
-                raise FormatError(f"steps/deformed must be finite; step {k} (frame {int(frame[k])}) holds NaN or "
-                                  f"Inf in {where}:/steps/deformed") from None
+        out["deformed"] = _read_deformed(steps["deformed"], where, frame, rows)
     groups = {name: _step_rows(content, rows, S) for name, content in groups.items()}
     stats = groups.get("stats")
     if isinstance(stats, dict) and isinstance(stats.get("frame"), np.ndarray) and stats["frame"].dtype.kind in "iu":

@@ -26,8 +26,8 @@ APPLIED_CANCELLATION_MAX = 64.0
 
 def _component_arrays(groups, S, N, seq):
     """``(A (S, C, 3, 3), b (S, C, 3), labels (N,))`` float64 / int64 of ``component_maps/``,
-    or None when it cannot serve. Labels are the file's, else deform's own
-    (`component_labels` of the sequence)."""
+    or None when it cannot serve. Labels are deform's own (`component_labels` of the
+    sequence); stored ``labels`` that differ make the maps unusable."""
     comp = (groups or {}).get("component_maps")
     if not isinstance(comp, dict):
         return None
@@ -86,15 +86,10 @@ def _is_image(x, x_def, A, b, labels=None) -> tuple:
 
 
 def _path_passes(seq, s, x_def) -> bool:
-    """verify's check of the path from ``positions[s]`` to `x_def` (obstacles at frame s, the
-    result's thickness; pairs that start closer keep their state, SPEC section 6)."""
-    from ..core.contact.obstacles import as_verify_obstacles
-    from ..core.verify.path import verify_step
+    """verify's check of the path from ``positions[s]`` to `x_def` at the result's thickness."""
+    from ..core.pipeline.verification import verify_deformed_path
 
-    obs, names = as_verify_obstacles(seq.obstacles, s, s)
-    return verify_step(np.asarray(seq.positions[s], dtype=np.float64), np.asarray(x_def, dtype=np.float64),
-                       edges=seq.edges, faces=seq.faces, thickness=seq.thickness, obstacles=obs,
-                       obstacle_names=names, pre_existing=True).ok
+    return verify_deformed_path(seq, s, x_def, seq.thickness).ok
 
 
 def applied_maps(steps, groups=None, seq=None) -> np.ndarray:
@@ -102,9 +97,9 @@ def applied_maps(steps, groups=None, seq=None) -> np.ndarray:
     (x = ``positions[frame]``) up to the rounding of forming and writing it.
 
     A per-component step (``steps/A`` all NaN) checks each vertex against its
-    component's map (``component_maps/A``, ``component_maps/b``, ``component_maps/labels``
-    or, without labels, deform's own `component_labels`). Without `seq`, with unusable
-    component maps or a non-finite map, a step is not applied.
+    component's map (``component_maps/A``, ``component_maps/b``; the components are
+    deform's own, `component_labels`, which stored labels must equal). Without `seq`,
+    with unusable component maps or a non-finite map, a step is not applied.
 
     Notes
     -----

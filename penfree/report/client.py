@@ -65,9 +65,8 @@ def client_markdown(section) -> str:
     rows = []
     for tr in o["truncations"]:
         row = sm[tr]
-        its = {"step": row["iterations_baseline"], "own": row.get("iterations_baseline_own")}
         rows.append([tr] + [_change(row, r) for r in rules]
-                    + [f"{its[r]} -> {row[f'iterations_{r}']}" for r in rules])
+                    + [f"{rule_baseline(row, r, 'iterations_baseline')} -> {row[f'iterations_{r}']}" for r in rules])
     lines = ["### Real-client CD passes\n",
              f"`{o['client']}` (`ipctk.ogc.TrustRegion` replay), dhat {o['dhat']:.4g}, min distance "
              f"{o['thickness']:.4g}, every {o['every']} step(s), {sm['n_steps']} steps, summed. Rule `step`: the "

@@ -194,9 +194,7 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
         if r is None and mode == "certificate":
             r = VerifyResult(ok=False, start_ok=True, min_separation=0.0, method="certificate")
         if r is None:
-            obs, names = _obstacles(seq, s, s)
-            r = verify_step(x, x_def, edges=seq.edges, faces=seq.faces, thickness=h, obstacles=obs,
-                            obstacle_names=names, max_pairs=max_pairs, pre_existing=True)
+            r = verify_deformed_path(seq, s, x_def, h, max_pairs)
         is_claimed = claimed is not None and bool(np.isfinite(claimed[k]) and claimed[k] >= 0)
         rep.steps.append(StepReport(s, "deformed", _shared_edges(r, rep), cert, float(m), is_claimed, strict))
         if progress is not None:
@@ -204,14 +202,23 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
     return rep
 
 
+def verify_deformed_path(seq, s, x_def, thickness, max_pairs=DEFAULT_MAX_PAIRS):
+    """The full check of a result's step: the path ``positions[s] -> x_def`` by CCD, obstacles
+    held at frame s, pairs that start closer than `thickness` (or intersecting) keeping
+    their state (SPEC section 6). A `VerifyResult`."""
+    obs, names = _obstacles(seq, s, s)
+    return verify_step(np.asarray(seq.positions[s], dtype=np.float64), np.asarray(x_def, dtype=np.float64),
+                       edges=seq.edges, faces=seq.faces, thickness=thickness, obstacles=obs,
+                       obstacle_names=names, max_pairs=max_pairs, pre_existing=True)
+
+
 def _shared_edges(r, rep):
-    """`r` holding the edges array of the report's earlier steps when its edges equal them:
+    """`r` holding the edges array of the report's last step when its edges equal them:
     each step's check makes the scene's edges anew, and a report of thousands of steps held
     thousands of copies (0.4 MB a step at 8K vertices)."""
-    for earlier in rep.steps[-1:]:
-        E = earlier.result.edges
-        if r.edges is not None and E is not None and r.edges.shape == E.shape and np.array_equal(r.edges, E):
-            r.edges = E
+    E = rep.steps[-1].result.edges if rep.steps else None
+    if r.edges is not None and E is not None and r.edges.shape == E.shape and np.array_equal(r.edges, E):
+        r.edges = E
     return r
 
 

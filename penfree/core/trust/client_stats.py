@@ -138,7 +138,7 @@ def summarize_counts(counts) -> dict:
         for rule in RADIUS_RULES:
             k = f"passes_{tr}_{rule}_deformed"
             if k in counts:
-                base = row["baseline" if rule == "step" else "baseline_own"]
+                base = rule_baseline(row, rule)
                 row[rule] = int(counts[k].sum())
                 row[f"{rule}_change"] = (row[rule] - base) / base if base else float("nan")
                 row[f"iterations_{rule}"] = int(counts[f"iterations_{tr}_{rule}_deformed"].sum())
@@ -146,6 +146,7 @@ def summarize_counts(counts) -> dict:
     return out
 
 
-def rule_baseline(row, rule) -> int:
-    """The baseline total a rule's change in a `summarize_counts` row is measured against."""
-    return row["baseline" if rule == "step" else "baseline_own"]
+def rule_baseline(row, rule, key="baseline") -> int:
+    """The baseline total a rule's change in a `summarize_counts` row is measured against
+    (`key` ``"iterations_baseline"``: its iterations)."""
+    return row[key if rule == "step" else f"{key}_own"]
