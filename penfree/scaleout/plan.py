@@ -158,7 +158,10 @@ def _steps_of(path, kind):
             ds = f["positions"]
             T, frame_bytes = int(ds.shape[0]), int(np.prod(ds.shape[1:])) * 8  # read as float64 at most
             if kind == "result":
-                return T, np.unique(np.asarray(f["steps/frame"][()], dtype=np.int64)), frame_bytes
+                frame = f["steps/frame"]
+                if frame.dtype.kind not in "iu":  # the real reader names what is wrong
+                    return None, None, 0
+                return T, np.unique(np.asarray(frame[()], dtype=np.int64)), frame_bytes
     except Exception:  # not HDF5 (or unreadable here): the real reader reports it in the task
         return None, None, 0
     return T, (np.arange(1, T) if kind == "sequence" else np.arange(0, T - 1)), frame_bytes
