@@ -265,6 +265,8 @@ def _read_group(g, where, skip_deformed=False, lazy=None) -> dict:
 
 def _check_deformed(ds, where) -> np.dtype:
     """The native dtype of a stored ``steps/deformed``; FormatError unless (S, N, 3) float."""
+    if not isinstance(ds, h5py.Dataset):
+        raise FormatError(f"steps/deformed must be a dataset; got a group in {where}:/steps/deformed")
     dt = np.dtype(ds.dtype)
     if dt.kind != "f" or ds.ndim != 3:
         raise FormatError(f"steps/deformed must be (S, N, 3) float; got {ds.shape} {dt} in {where}:/steps/deformed")
@@ -273,8 +275,9 @@ def _check_deformed(ds, where) -> np.dtype:
 
 def _read_deformed(ds, where, frame=None, rows=None) -> np.ndarray:
     """The stored deformed states (the steps `rows` of them, all by default), each checked finite."""
+    dtype = _check_deformed(ds, where)  # before its shape is used
     rows = range(ds.shape[0]) if rows is None else rows
-    out = np.empty((len(rows),) + ds.shape[1:], dtype=_check_deformed(ds, where))
+    out = np.empty((len(rows),) + ds.shape[1:], dtype=dtype)
     for i, k in enumerate(rows):
         out[i] = ds[k]
         if not np.isfinite(out[i]).all():

@@ -199,6 +199,10 @@ BROKEN_RESULTS = {
     # the scale-out plan probes steps/frame before the reader: no ComplexWarning from it
     "frame-is-complex": (_replace("steps/frame", lambda f: f.create_dataset("steps/frame", data=np.arange(1, 3) + 0j)),
                          "steps/frame must be (S,) integer; got (2,) complex128 in {p}:/steps/frame"),
+    "deformed-is-a-scalar": (_replace("steps/deformed", lambda f: f.create_dataset("steps/deformed", data=1.0)),
+                             "steps/deformed must be (S, N, 3) float; got () float64 in {p}:/steps/deformed"),
+    "deformed-is-a-group": (_replace("steps/deformed", lambda f: f.create_group("steps/deformed")),
+                            "steps/deformed must be a dataset; got a group in {p}:/steps/deformed"),
     "steps-is-a-dataset": (_replace("steps", lambda f: f.create_dataset("steps", data=np.arange(3))),
                            "steps must be a group of per-step datasets; got a dataset in {p}:/steps"),
 }
