@@ -1,13 +1,15 @@
 """Real-client CD passes (ipctk.ogc.TrustRegion) of `auto` against the baseline, per sample.
 
 For every sample, `penfree deform --model auto --client-model T` is run for each
-truncation T (radius rule ``step``), and every step is replayed through
+truncation T (predicting for radius rule ``step``; with ``--radius own``, as
+``--client-radius own``, for rule ``own``), and every step is replayed through
 ``ipctk.ogc.TrustRegion`` from the recorded ``x`` and from ``x_def``, under both
 radius rules (``step``: the simulator keeps the radius of ``x``; ``own``: ipctk's warm
 start recomputes it from ``x_def`` and moves isotropically within the radii). Printed:
 passes summed over the sequence, each rule against its own baseline from ``x``.
 
-    python benchmarks/eval_client.py [--every K] [--client ipctk|own] [SAMPLE.h5 ...]
+    python benchmarks/eval_client.py [--every K] [--client ipctk|own] [--truncation T] [--radius step|own]
+                                     [SAMPLE.h5 ...]
 
 Needs ipctk (pip install 'penfree[ogc]') for ``--client ipctk``.
 """
@@ -30,13 +32,14 @@ from penfree.core.pipeline.deform import deform_sequence
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 
 
-def evaluate(path, every=1, client="ipctk", truncations=("isotropic", "planar"), predictor="own", repeat=True):
+def evaluate(path, every=1, client="ipctk", truncations=("isotropic", "planar"), predictor="own", repeat=True,
+             radius="step"):
     seq = read_sequence(path)
     dhat = resolve_dhat(None, seq.contact_radius, seq.thickness)
     rows = {}
     for tr in truncations:
         cm = ClientModel(truncation=tr, dhat=dhat, edges=seq.edges, faces=seq.faces, predictor=predictor,
-                         repeat=repeat)
+                         repeat=repeat, radius=radius)
         t0 = time.perf_counter()
         out = deform_sequence(seq, model="auto", client_model=cm)
         t_fit = time.perf_counter() - t0
@@ -59,17 +62,19 @@ def main(argv=None):
                     help="the client auto replays its candidates through (ClientModel.predictor)")
     ap.add_argument("--no-repeat", action="store_true",
                     help="without the rigid-repeat candidate and the co-rotated target (ClientModel.repeat)")
+    ap.add_argument("--radius", default="step", choices=("step", "own"),
+                    help="the radius rule auto predicts for (ClientModel.radius, deform --client-rule)")
     a = ap.parse_args(argv)
     files = a.files or sorted(glob.glob(os.path.join(ROOT, "samples", "*.h5")))
     print(f"real-client CD passes summed over each sequence ({a.client}, every {a.every} step(s)); "
-          f"auto chosen with --client-model = the truncation of the column, radius rule step, predictor {a.predictor}")
+          f"auto chosen with --client-model = the truncation of the column, radius rule {a.radius}, predictor {a.predictor}")
     print()
     print("| sample | truncation | steps (moved) | baseline, rule step | auto, rule step | change "
           "| baseline, rule own | auto, rule own | change |")
     print("|---|---|---|---|---|---|---|---|---|")
     for path in files:
         trs = ("isotropic", "planar") if a.truncation == "both" else (a.truncation,)
-        rows = evaluate(path, a.every, a.client, trs, a.predictor, not a.no_repeat)
+        rows = evaluate(path, a.every, a.client, trs, a.predictor, not a.no_repeat, a.radius)
         for tr, r in rows.items():
             print(f"| {os.path.basename(path)} | {tr} | {r['n']} ({r['moved']}) | {r['baseline']} | {r['step']} | "
                   f"{100 * r['step_change']:+.0f}% | {r['baseline_own']} | {r['own']} | {100 * r['own_change']:+.0f}% |")

@@ -47,15 +47,19 @@ from .options import (
 @click.option("--format", "in_format", default=None, help="Input format (default: from the extension).")
 @click.option("--client-model", type=click.Choice(["isotropic", "planar"]), default=None,
               help="With --model auto: choose by the predicted CD passes of an OGC client with this truncation "
-                   "(radius rule step; penfree's own replay, no ipctk needed).")
+                   "(penfree's own replay, no ipctk needed).")
+@click.option("--client-radius", type=click.Choice(["step", "own"]), default=None,
+              help="With --client-model: the radius rule the simulator follows: step = it keeps the inflation radius "
+                   "computed at x (how a pre-deformation should be integrated) [default]; own = it calls ipctk's "
+                   "warm_start_time_step from x_def, which recomputes the radius.")
 @click.option("--dhat", type=FiniteFloat(min=0.0, min_open=True, max=SCALE_MAX), default=None,
               help="With --client-model: contact offset [default: the contact radius, else the thickness].")
 @usd_options
 @json_option
 @scaleout_options
 def command(input_paths, output_path, model, projection, margin, thickness, contact_radius, frames, weights_name,
-            threads, overwrite, per_vertex, with_stats, check_start, in_format, client_model, dhat, usd_prims,
-            usd_obstacles, as_json, workers, scheduler):
+            threads, overwrite, per_vertex, with_stats, check_start, in_format, client_model, client_radius, dhat,
+            usd_prims, usd_obstacles, as_json, workers, scheduler):
     """Fit, certify and apply a global affine map to every step of IN.
 
     Each step s moves frame s toward the prediction 2 x^s - x^(s-1); the straight path
@@ -68,6 +72,8 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
 
     if dhat is not None and not client_model:
         raise InputError("--dhat is the contact offset of --client-model's replay; give --client-model too")
+    if client_radius is not None and not client_model:
+        raise InputError("--client-radius is the radius rule of --client-model's replay; give --client-model too")
     opts = dict(model=model, projection=projection, margin=margin, thickness=thickness,
                 contact_radius=contact_radius, per_vertex=per_vertex, check_start=check_start,
                 frames=parse_frames(frames), format=in_format)
@@ -104,7 +110,7 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
 
         if model != "auto":
             raise InputError(f"--client-model needs --model auto; got --model {model}")
-        cm = ClientModel(truncation=client_model, edges=seq.edges, faces=seq.faces,
+        cm = ClientModel(truncation=client_model, radius=client_radius or "step", edges=seq.edges, faces=seq.faces,
                          dhat=resolve_dhat(dhat, seq.contact_radius if contact_radius is None else contact_radius,
                                            seq.thickness if thickness is None else thickness))
 
@@ -123,7 +129,7 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
                                            progress=bar)
     attrs = result_attrs(input_path, result.options,
                          weights=weights_name or ("weights" if seq.weights is not None else None),
-                         **({"client_model": client_model} if client_model else {}))
+                         **({"client_model": client_model, "client_radius": cm.radius} if client_model else {}))
     write_result(output_path, seq, result.steps, attrs, groups=groups, overwrite=overwrite)
     _finish(result.steps, seq, input_path, output_path, time.perf_counter() - t0, as_json)
 

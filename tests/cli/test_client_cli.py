@@ -59,6 +59,35 @@ def test_deform_dhat_needs_client_model(two_rods, tmp_path):
     assert not out.exists()
 
 
+def test_deform_client_radius_needs_client_model(two_rods, tmp_path):
+    out = tmp_path / "d.h5"
+    r = CliRunner().invoke(main, ["deform", str(two_rods), "-o", str(out), "--client-radius", "own"])
+    assert r.exit_code == 2 and "--client-radius" in r.output and "--client-model" in r.output
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("rule", ["own", "step"])
+def test_deform_client_radius_is_the_libraries_and_recorded(two_rods, tmp_path, rule):
+    """--client-radius RULE writes what deform_sequence does with ClientModel(radius=RULE),
+    and records the rule beside the truncation."""
+    from penfree import read_sequence
+    from penfree.core.pipeline.client_select import ClientModel
+    from penfree.core.pipeline.deform import deform_sequence
+    from penfree.formats.result import read_result
+
+    out = tmp_path / "d.h5"
+    args = ["deform", str(two_rods), "-o", str(out), "--client-model", "planar", "--dhat", "1.0"]
+    r = CliRunner().invoke(main, args + ([] if rule == "step" else ["--client-radius", rule]))
+    assert r.exit_code == 0, r.output
+    seq = read_sequence(str(two_rods))
+    ref = deform_sequence(seq, model="auto", client_model=ClientModel(truncation="planar", dhat=1.0, radius=rule,
+                                                                      edges=seq.edges, faces=seq.faces))
+    with h5py.File(out, "r") as f:
+        np.testing.assert_array_equal(f["steps/deformed"][()], ref.steps["deformed"])
+    opts = read_result(str(out)).attrs["options"]
+    assert opts["client_model"] == "planar" and opts["client_radius"] == rule
+
+
 def test_report_client_without_ipctk_exits_2(two_rods, tmp_path, monkeypatch):
     d = tmp_path / "d.h5"
     assert CliRunner().invoke(main, ["deform", str(two_rods), "-o", str(d)]).exit_code == 0

@@ -14,6 +14,9 @@ The integration contract (README, "Using penfree inside a simulator"):
    radius from ``|x_pred - x_def|``). A client that recomputes it (the ``own`` rule)
    shrinks every free vertex's cap when ``x_def`` is close to ``x_pred`` and can need
    *more* CD passes than without penfree (BENCHMARKS.md, "Real-client CD passes").
+   A simulator that must call ``warm_start_time_step`` anyway passes
+   ``radius_rule="own"``: the candidates are then replayed under that rule, and doing
+   nothing wins wherever a map would cost passes there.
 """
 
 from __future__ import annotations
@@ -45,7 +48,9 @@ class Predeformed:
         The applied map ``x_def = A x + b`` (up to rounding); the identity when
         doing nothing was best.
     query_radius : float
-        The inflation radius the client must keep for this step (rule ``step``).
+        Rule ``step``: the inflation radius the client must keep for this step,
+        computed at ``x``. Rule ``own``: the radius ipctk's warm start computes from
+        ``x_def``, ``max(2 dhat, max_v |x_pred - x_def|)``.
     model : str
         The applied candidate (``"none"``: x_def is x; ``...-short0.5``: a shortened
         step, when the preferred map failed the gate).
@@ -64,7 +69,7 @@ class Predeformed:
 
 
 def predeform(x_prev, x, *, edges=None, faces=None, contact_radius=0.0, thickness=0.0, obstacles=None,
-              bounds=None, truncation="isotropic", weights=None) -> Predeformed:
+              bounds=None, truncation="isotropic", weights=None, radius_rule="step") -> Predeformed:
     """Certified pre-deformation of one step, chosen by the client's predicted CD passes.
 
     Parameters
@@ -93,6 +98,10 @@ def predeform(x_prev, x, *, edges=None, faces=None, contact_radius=0.0, thicknes
         The client's filter (`client_select.ClientModel`).
     weights : (N,) float, optional
         Fit weights (e.g. masses).
+    radius_rule : {"step", "own"}
+        The client's radius rule (`client_select.ClientModel.radius`): ``step``, the
+        simulator keeps `query_radius` (the contract above); ``own``, it calls
+        ``warm_start_time_step`` from `x_def`, and the candidates are replayed that way.
 
     Returns
     -------
@@ -103,12 +112,13 @@ def predeform(x_prev, x, *, edges=None, faces=None, contact_radius=0.0, thicknes
     One step of `penfree deform --model auto --client-model TRUNCATION`: the certified
     candidates (the model ladder, clamps and blends toward ``x_pred``, and
     ``rigid-repeat``, the step's own rigid motion applied again), ordered by the
-    client's replayed CD passes under the radius rule ``step`` toward the co-rotated
+    client's replayed CD passes under `radius_rule` toward the co-rotated
     target (`client_select.corotated_target`; doing nothing stays a candidate and wins
     ties), then shortened steps,
     then doing nothing; the first that passes the step gate (certificate, near-pair
-    CCD with the thickness, obstacles) is applied. Keep ``query_radius`` (module doc):
-    with the ``own`` rule the savings can turn into losses.
+    CCD with the thickness, obstacles) is applied. Under rule ``step`` keep
+    ``query_radius`` (module doc): a client that recomputes it can turn the savings
+    into losses unless it was predicted for (``radius_rule="own"``).
 
     Examples
     --------
@@ -144,10 +154,11 @@ def predeform(x_prev, x, *, edges=None, faces=None, contact_radius=0.0, thicknes
             raise InputError(f"bounds must be ({x64.shape[0]},) real, finite and >= 0; got {b.shape} {b.dtype}")
         b = b.astype(np.float64)
         d_start = b / K.DEFAULT_GAMMA + seq.thickness
-    cm = ClientModel(truncation=truncation, dhat=dhat, edges=seq.edges, faces=seq.faces)
+    cm = ClientModel(truncation=truncation, dhat=dhat, edges=seq.edges, faces=seq.faces, radius=radius_rule)
     strategy = Auto(seq, "auto", seq.thickness, 1, client_model=cm, d_start=d_start)
     _, o = run_step(seq, 1, strategy, required_margin(seq.thickness), seq.thickness, seq.weights,
                     seq.contact_radius)
+    at = x64 if radius_rule == "step" else np.asarray(o.x_def, dtype=np.float64)
     return Predeformed(o.x_def, np.asarray(o.A, dtype=np.float64), np.asarray(o.b, dtype=np.float64),
-                       inflation_radius(x64, x_pred, dhat), o.model, o.certificate_margin,
+                       inflation_radius(at, x_pred, dhat), o.model, o.certificate_margin,
                        o.extra.get("table") or [])

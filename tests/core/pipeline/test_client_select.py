@@ -198,6 +198,29 @@ class TestPredeform:
         assert penfree.certify(r.A)
         np.testing.assert_allclose(X @ r.A.T + r.b, r.x_def, atol=1e-12)
 
+    @pytest.mark.parametrize("rule", ["own", "step"])
+    def test_radius_rule_is_predicted_and_its_radius_returned(self, rule, monkeypatch):
+        """Every replay runs under the rule asked for, and the radius returned is the one
+        to keep at x (rule step: max |x_pred - x| = 5) or the one ipctk's warm start
+        computes from x_def (rule own: 2 dhat, x_def being x_pred)."""
+        from penfree.core.pipeline import client_select
+
+        rules = []
+
+        def spy(*args, **kw):
+            rules.append(kw["radius"])
+            return replay_step(*args, **kw)
+
+        monkeypatch.setattr(client_select, "replay_step", spy)
+        r = penfree.predeform(X - V, X, edges=EDGES, contact_radius=1.0, radius_rule=rule)
+        np.testing.assert_allclose(r.x_def, X + V, atol=1e-12)
+        assert r.query_radius == {"own": 2.0, "step": 5.0}[rule]
+        assert rules and set(rules) == {rule}
+
+    def test_radius_rule_is_validated(self):
+        with pytest.raises(InputError, match="radius rule must be one of"):
+            penfree.predeform(X - V, X, edges=EDGES, contact_radius=1.0, radius_rule="mine")
+
     @pytest.mark.parametrize("bounds", [np.array(["a", "b", "c", "d"]), np.ones(4) * (1 + 1j), np.ones(4, bool),
                                         np.full(4, np.nan), -np.ones(4), np.ones(3)],
                              ids=["str", "complex", "bool", "nan", "negative", "short"])
