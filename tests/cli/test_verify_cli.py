@@ -215,3 +215,32 @@ def test_broken_result_exit_2_never_read_as_a_sequence(cli, tmp_path, case, comm
     p = _cloth_result(tmp_path / "res.h5", change)
     r = cli(command, p)
     assert r.exit_code == 2 and expect.format(p=p) in r.stderr, r.output
+
+
+@pytest.mark.parametrize("what", ["sequence", "result"])
+def test_frames_selecting_no_step_of_a_long_file_reads_nothing(cli, tmp_path, monkeypatch, what):
+    """A long file (frames beyond MAX_TASK_BYTES, verified in ranges) with a --frames slice
+    that selects no step: exit 2 with the one-line error, before any frame range runs (it
+    went through a whole-file task that read every frame first)."""
+    import sys
+
+    import penfree.scaleout.plan  # noqa: F401 (patched below)
+    import penfree.scaleout.verify_report  # noqa: F401
+
+    frames, F = cloth_frames(T=8)
+    p = tmp_path / "in.h5"
+    write_sequence(str(p), Sequence(positions=frames, faces=F).validate())
+    target = p
+    if what == "result":
+        target = tmp_path / "res.h5"
+        assert cli("deform", str(p), "-o", str(target)).exit_code == 0
+    monkeypatch.setattr(sys.modules["penfree.scaleout.plan"], "MAX_TASK_BYTES", 100)
+
+    def no_ranges(*args, **kwargs):
+        raise AssertionError("verify_many ran")
+
+    monkeypatch.setattr(sys.modules["penfree.scaleout.verify_report"], "verify_many", no_ranges)
+    monkeypatch.setattr(sys.modules["penfree.scaleout"], "verify_many", no_ranges)
+    r = cli("verify", str(target), "--frames", "0:1")
+    kind = "result" if what == "result" else "sequence"
+    assert r.exit_code == 2 and f"--frames 0:1 selects no step of {target} ({kind})" in r.stderr, r.output
