@@ -65,7 +65,7 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
     Each step s moves frame s toward the prediction 2 x^s - x^(s-1); the straight path
     to the deformed state is certified penetration-free (exact test) before it is written.
     """
-    from ..core.pipeline.deform import deform_sequence, deform_stats, result_attrs
+    from ..core.pipeline.deform import deform_sequence, deform_stats, result_attrs, step_indices
     from ..formats import check_outputs, input_files, read_sequence
     from ..formats.result import write_result
     from ..scaleout import is_long, is_scaleout
@@ -115,7 +115,7 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
                                            seq.thickness if thickness is None else thickness))
 
     t0 = time.perf_counter()
-    n_steps = len(range(*slice(*(frame_slice or (None, None))).indices(seq.n_frames)))
+    n_steps = step_indices(seq.n_frames, frame_slice).size  # (exit 2 here when it selects none)
     with Progress(n_steps, "deform") as bar:
         result = deform_sequence(
             seq, model=model, projection=projection, margin=margin, thickness=thickness,
@@ -151,12 +151,14 @@ def _deform_long(input_path, output_path, opts, overwrite, with_stats, as_json):
     """A serial run of a recording whose frames exceed `scaleout.plan.MAX_TASK_BYTES`: its
     frame ranges one after another in this process, merged as a scale-out run merges them
     (the same result; at most about that many bytes of frames held at a time)."""
+    from ..core.pipeline.deform import step_indices
     from ..formats import read_sequence
     from ..scaleout import deform_many
 
     t0 = time.perf_counter()
     head = read_sequence(input_path, format="hdf5", frame_window=(0, 2))  # the summary's size and kind
-    n_steps = len(range(*slice(*(opts["frames"] or (None, None))).indices(_n_frames(input_path))))
+    # the steps selected (exit 2 before any range is read when there are none)
+    n_steps = step_indices(_n_frames(input_path), opts["frames"]).size
     with Progress(n_steps, "deform") as bar:
         [(_, _, steps)] = deform_many([input_path], output_path, options=dict(opts, progress=bar),
                                       overwrite=overwrite, with_stats=with_stats, in_process=True)

@@ -181,3 +181,36 @@ def test_output_inside_an_input_directory_is_refused(cli, tmp_path):
     r = cli("deform", frames, "-o", frames / "res.h5", expect=2)
     assert "inside the input directory" in r.stderr
     cli("deform", frames, "-o", tmp_path / "res.h5", expect=0)
+
+
+@pytest.mark.parametrize("long_file", [False, True], ids=["whole", "long"])
+@pytest.mark.parametrize("frames, total", [(None, 5), ("2:4", 2), ("0:1", None)])
+def test_progress_counts_the_selected_steps(cli, tmp_path, monkeypatch, long_file, frames, total):
+    """The progress bar's total is the number of steps deform runs (it counted frames: 6 for
+    5 steps); a slice selecting no step is the one-line exit 2 before a long file's frame
+    ranges read anything."""
+    import sys
+
+    import penfree.cli.deform as cli_deform
+    import penfree.scaleout.plan  # noqa: F401 (patched below)
+
+    p = tmp_path / "in.h5"
+    write_sequence(str(p), _cloth(T=6))
+    totals = []
+
+    class Spy(cli_deform.Progress):
+        def __init__(self, n, *args, **kwargs):
+            totals.append(n)
+            super().__init__(n, *args, **kwargs)
+
+    monkeypatch.setattr(cli_deform, "Progress", Spy)
+    if long_file:
+        monkeypatch.setattr(sys.modules["penfree.scaleout.plan"], "MAX_TASK_BYTES", 100)
+    out = tmp_path / "out.h5"
+    r = cli("deform", str(p), "-o", str(out), *([] if frames is None else ["--frames", frames]))
+    if total is None:
+        assert r.exit_code == 2 and "--frames 0:1 selects no step of a 6-frame sequence" in r.stderr, r.output
+        assert totals == [] and not out.exists()
+        return
+    assert r.exit_code == 0, r.output
+    assert totals == [total] and read_result(str(out)).n_steps == total
