@@ -535,3 +535,207 @@ def test_window_reads_name_the_files_steps_and_frame_counts(tmp_path):
     for window in (None, (0, 2), (4, 9)):
         with pytest.raises(InputError, match=r"obstacle positions must be \(12, M, 3\) or \(M, 3\); got \(11, 4, 3\)"):
             read_sequence(path, frame_window=window)
+
+
+def _plate_result(tmp_path, *extra, T=16):
+    """A deform result of `_cloth_over_a_rising_plate` (16 vertices, a mesh obstacle per frame)."""
+    path = _cloth_over_a_rising_plate(tmp_path / "in.h5", T=T)
+    out = str(tmp_path / "out.h5")
+    r = CliRunner().invoke(main, ["deform", path, "-o", out, *extra])
+    assert r.exit_code == 0, r.output
+    return out
+
+
+def _long(monkeypatch, max_bytes=2000):
+    """Every result beyond `max_bytes` of frames is long; Dask cannot be imported; returns the
+    positions windows read (`_spy_windows`)."""
+    import sys
+
+    monkeypatch.setattr(sys.modules["penfree.scaleout.plan"], "MAX_TASK_BYTES", max_bytes)
+    _no_dask(monkeypatch)
+    return _spy_windows(monkeypatch)
+
+
+def _without_fit_times(doc):
+    """`doc` (report.json) without the ladder's fit wall times, which differ between any two runs."""
+    import copy
+
+    doc = copy.deepcopy(doc)
+    for entry in doc["files"]:
+        for row in (entry.get("ladder") or {}).get("rows", []):
+            row.pop("fit_ms_mean"), row.pop("fit_ms_median")
+    return doc
+
+
+@pytest.mark.parametrize("extra", [
+    ["--no-ladder"],
+    ["--no-ladder", "--replay", "--fail-if-uncertified"],
+    ["--no-ladder", "--frames", "4:13", "--min-speedup", "0.5"],
+    ["--replay"],
+], ids=["no-ladder", "replay-fail-if-uncertified", "frames-slice", "ladder-replay"])
+def test_serial_report_of_a_long_file_goes_in_ranges_without_dask(tmp_path, monkeypatch, extra):
+    """A serial ``report`` of a result whose frames exceed `MAX_TASK_BYTES` read it whole (its
+    positions and every deformed state). It now reads the file's per-step tables (frames 0
+    and 1 of the positions), then one frame range after another in this process
+    (`cluster.InProcess`, no Dask), each only the frames its steps use, s - 1 .. s + 1;
+    report.json and report.md equal those of a whole read byte for byte (the ladder's fit
+    wall times aside), obstacles, --replay, checks and a --frames slice included."""
+    import json
+
+    out = _plate_result(tmp_path)
+    runner = CliRunner()
+    args = ["--no-plots", "--json", *extra]
+    whole = runner.invoke(main, ["report", out, "-o", str(tmp_path / "whole"), *args])
+    assert whole.exit_code == 0, whole.output
+    windows = _long(monkeypatch)
+    r = runner.invoke(main, ["report", out, "-o", str(tmp_path / "ranges"), *args])
+    assert r.exit_code == 0, r.output
+    read = [w for name, w in windows if name == "positions"]
+    assert (0, 2) in read and all(w is not None and min(w[1], 16) - w[0] <= 7 for w in read), read
+    assert len({w for w in read if w != (0, 2)}) >= 2, read  # several ranges
+    a, b = (json.loads((tmp_path / d / "report.json").read_text()) for d in ("ranges", "whole"))
+    if "--no-ladder" in extra:
+        for name in ("report.json", "report.md"):
+            assert (tmp_path / "ranges" / name).read_bytes() == (tmp_path / "whole" / name).read_bytes(), name
+    else:
+        assert a["files"][0]["ladder"]["n_steps"] == 15
+        assert _without_fit_times(a) == _without_fit_times(b)
+    entry = a["files"][0]
+    assert entry["scene"]["n_frames"] == 16 and entry["certificate"]["n_uncertified"] == 0
+    if "--frames" in extra:
+        assert entry["steps"]["frame"] == list(range(4, 13))
+
+
+@pytest.mark.parametrize("tamper", ["stored", "differs", "unusable"])
+def test_long_report_takes_the_stats_group_as_a_whole_read_does(tmp_path, monkeypatch, tamper):
+    """Whether a stored ``stats/`` group serves is decided over every step, once: a group
+    edited in one range differs from the computed statistics (a CI check notes the key),
+    a ``stats/frame`` wrong in one range makes the group unusable for all, as in a whole
+    read; an untouched group is read, range by range."""
+    import json
+
+    out = _plate_result(tmp_path, "--stats")
+    with h5py.File(out, "r+") as f:
+        k = int(np.flatnonzero(f["stats/frame"][()] == 12)[0])
+        if tamper == "differs":
+            f["stats/k_1pct_next_deformed"][k] = 7.0
+        elif tamper == "unusable":
+            f["stats/frame"][k] = 11
+    extra = ["--fail-if-uncertified"] if tamper == "differs" else []
+    runner = CliRunner()
+    args = ["--no-plots", "--no-ladder", *extra]
+    whole = runner.invoke(main, ["report", out, "-o", str(tmp_path / "whole"), *args])
+    assert whole.exit_code == 0, whole.output
+    _long(monkeypatch)
+    r = runner.invoke(main, ["report", out, "-o", str(tmp_path / "ranges"), *args])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "ranges" / "report.json").read_bytes() == (tmp_path / "whole" / "report.json").read_bytes()
+    entry = json.loads((tmp_path / "ranges" / "report.json").read_text())["files"][0]
+    assert entry["stats_source"] == ("file" if tamper == "stored" else "computed")
+    note = {"stored": None, "differs": "k_1pct_next_deformed", "unusable": "stats/frame differs from steps/frame"}
+    assert (entry.get("stats_note") is None) if note[tamper] is None else note[tamper] in entry["stats_note"]
+
+
+def _carried_stack_result(tmp_path, forge=False):
+    out = str(tmp_path / "pc.h5")
+    r = CliRunner().invoke(main, ["deform", str(SAMPLES / "carried_stack.h5"), "-o", out, "--model",
+                                  "per-component", "--frames", "0:14"])
+    assert r.exit_code == 0, r.output
+    if forge:  # a per-component step in the second range without finite maps
+        with h5py.File(out, "r+") as f:
+            k = int(np.flatnonzero(f["steps/frame"][()] == 10)[0])
+            A = f["component_maps/A"][k]
+            A[0] = np.nan
+            f["component_maps/A"][k] = A
+    return out
+
+
+@pytest.mark.parametrize("what", ["own-client", "per-component", "per-component-unverifiable", "frames-slice"])
+def test_report_in_process_ranges_equal_the_whole_report(tmp_path, monkeypatch, what):
+    """`report_many` in this process, a file in frame ranges (each read windowed), gives the
+    entry `make_file_report` gives for the whole read: the own client's replay (every 2nd
+    step with a next frame), per-component maps checked through verify's path check, and
+    verify's message when it cannot check them (maps of a step in the second range made NaN)."""
+    from penfree.formats._json import json_safe
+    from penfree.report.build import make_file_report, open_result, select_steps
+    from penfree.scaleout import report_many
+
+    frames, client = None, None
+    if what == "own-client":
+        out = _plate_result(tmp_path)
+        client = {"client": "own", "truncation": "both", "radius": "both", "dhat": None, "every": 2}
+    elif what == "frames-slice":
+        out, frames = _plate_result(tmp_path), (-13, -1)
+    else:
+        out = _carried_stack_result(tmp_path, forge=what == "per-component-unverifiable")
+    options = dict(frames=frames, cd_share=0.4, frame_ms=20.0, replay=False, ladder=False, use_stored_stats=False,
+                   verify_paths=True, client=client)
+    common = {k: options[k] for k in ("cd_share", "frame_ms", "replay", "ladder", "use_stored_stats", "verify_paths")}
+    want = make_file_report(out, select_steps(open_result(out), frames), client=client, **common)
+    windows = _long(monkeypatch, max_bytes=1)
+    seen = []
+    inputs, [got] = report_many([out], options=options, in_process=True, step_progress=lambda: seen.append(1))
+    assert inputs == [out] and seen
+    read = [w for name, w in windows if name == "positions"]
+    assert read and None not in read and len(read) >= 3, read
+    assert json_safe(got) == json_safe(want)
+    if what == "own-client":
+        assert got["client"]["steps"]["frame"] == list(range(1, 15, 2))
+    if what == "per-component-unverifiable":
+        assert "is not finite" in got["certificate"]["path_check_error"]
+        assert got["certificate"]["n_path_failed"] == got["scene"]["n_steps"]
+    elif what != "frames-slice":
+        assert got["certificate"]["n_path_failed"] == 0
+
+
+def test_long_report_of_a_damaged_range_exits_2_in_one_line(tmp_path, monkeypatch):
+    """A NaN in a deformed state of a long result is found by the range that reads it: exit 2,
+    one line naming the file, its frame range and the step; nothing written."""
+    out = _plate_result(tmp_path)
+    with h5py.File(out, "r+") as f:
+        k = int(np.flatnonzero(f["steps/frame"][()] == 12)[0])
+        d = f["steps/deformed"][k]
+        d[3, 1] = np.nan
+        f["steps/deformed"][k] = d
+    _long(monkeypatch)
+    r = CliRunner().invoke(main, ["report", out, "-o", str(tmp_path / "rep"), "--no-ladder"])
+    assert r.exit_code == 2, r.output
+    assert len(r.output.strip().splitlines()) == 1
+    assert "frames" in r.output and f"step {k} (frame 12) holds NaN or Inf" in r.output, r.output
+    assert not (tmp_path / "rep").exists()
+
+
+def test_long_report_frames_selecting_no_step_exits_2_before_reading_frames(tmp_path, monkeypatch):
+    """A --frames slice selecting no step of a long result is the one-line exit 2 of a whole read,
+    decided on the per-step tables: no frame beyond the tables' first two is read."""
+    out = _plate_result(tmp_path)
+    whole = CliRunner().invoke(main, ["report", out, "-o", str(tmp_path / "w"), "--frames", "0:1"])
+    windows = _long(monkeypatch)
+    r = CliRunner().invoke(main, ["report", out, "-o", str(tmp_path / "rep"), "--frames", "0:1"])
+    assert (r.exit_code, whole.exit_code) == (2, 2) and r.output == whole.output, r.output
+    assert "selects none of the 15 steps" in r.output and len(r.output.strip().splitlines()) == 1
+    assert [w for name, w in windows if name == "positions"] == [(0, 2)]
+
+
+def test_report_on_dask_splits_a_file_in_ranges_and_equals_serial(tmp_path, scheduler, monkeypatch):
+    """``report --scheduler`` ran one task per file; a file is now cut in frame ranges as verify
+    cuts it (a long one always), the ranges' parts joined in step order on the driver: the
+    entry of a serial run (ladder fit times aside), checks and replay included."""
+    import json
+
+    out = _plate_result(tmp_path)
+    runner = CliRunner()
+    args = ["--no-plots", "--json", "--replay", "--fail-if-uncertified"]
+    serial = runner.invoke(main, ["report", out, "-o", str(tmp_path / "serial"), *args])
+    assert serial.exit_code == 0, serial.output
+    spy = []
+    import penfree.scaleout.verify_report as vr
+
+    real = vr.run_tasks
+    monkeypatch.setattr(vr, "run_tasks", lambda c, fn, tasks, *a, **kw: spy.extend(tasks) or real(c, fn, tasks, *a,
+                                                                                                   **kw))
+    r = runner.invoke(main, ["report", out, "-o", str(tmp_path / "dask"), *args, "--scheduler", scheduler])
+    assert r.exit_code == 0, r.output
+    assert len(spy) >= 2 and all(t.lo is not None for t in spy), spy
+    a, b = (json.loads((tmp_path / d / "report.json").read_text()) for d in ("dask", "serial"))
+    assert _without_fit_times(a) == _without_fit_times(b)

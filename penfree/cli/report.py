@@ -73,7 +73,8 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
       penfree report deformed.h5 -o new/ --baseline old/report.json --max-regression 5
     """
     from ..report.build import (
-        check_report_dir, load_report_json, make_file_report, open_result, select_steps, stored_stats, write_report,
+        check_report_dir, load_report_json, make_file_report, open_result, open_tables, select_steps, stored_stats,
+        write_report,
     )
     from ..report.baseline import baseline_warnings, match_baseline
     from ..report.checks import run_checks
@@ -86,7 +87,7 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
             if ctx.get_parameter_source(name) in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT):
                 raise InputError(f"{flag} applies only to the real-client replay; give --client ipctk or drop {flag}")
     ci = fail_if_uncertified or min_speedup is not None or min_hit_rate_gain is not None or baseline_path is not None
-    from ..scaleout import expand_inputs
+    from ..scaleout import expand_inputs, is_long
 
     # Several plain files run here as before; directories and globs expand; Dask on request.
     files = expand_inputs(files, missing_ok=True)
@@ -104,22 +105,35 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
         load_ipctk()  # exit 2 with the install hint before any work
         client_opts = {"client": client, "truncation": truncation, "radius": radius_rule, "dhat": dhat,
                        "every": every}
-    results = [select_steps(open_result(path), frame_slice) for path in files]  # all inputs checked first
+    # All inputs checked first; a long recording by its per-step tables (its frames are read
+    # a range at a time, as verify reads them).
+    long = [is_long(path, "result") for path in files]
+    results = []
+    for path, lg in zip(files, long):
+        res, n_frames = open_tables(path) if lg else (open_result(path), None)
+        results.append(select_steps(res, frame_slice, n_frames=n_frames))
 
     reports = []
-    if scale:  # several inputs / Dask: one task per file (penfree.scaleout)
+    # A stored stats/ group is a cache for reading; a CI check never trusts it.
+    opts = dict(frames=frame_slice, cd_share=cd_share, frame_ms=frame_ms, replay=replay, ladder=not no_ladder,
+                use_stored_stats=not ci, verify_paths=fail_if_uncertified)
+    if scale:  # several inputs / Dask: a task per file or frame range (penfree.scaleout)
         from . import scaleout
 
         if client:
             raise InputError("--client is not supported with --workers or --scheduler")
-        # A stored stats/ group is a cache for reading; a CI check never trusts it.
-        opts = dict(frames=frame_slice, cd_share=cd_share, frame_ms=frame_ms, replay=replay, ladder=not no_ladder,
-                    use_stored_stats=not ci, verify_paths=fail_if_uncertified)
         files, reports = scaleout.report_entries(files, opts, workers=workers, scheduler=scheduler, threads=threads)
-    for path, res in zip(files, results if not scale else ()):
+    for path, res, lg in zip(files, results if not scale else (), long):
         work = res.n_steps * ((ci or stored_stats(res, replay) is None) + (not no_ladder)) + (
             -(-res.n_steps // every) if client else 0)
         with Progress(work, f"report {os.path.basename(path)}") as bar:
+            if lg:  # frames beyond MAX_TASK_BYTES: its frame ranges one after another, as a worker would
+                from ..scaleout import report_many
+
+                _, entries = report_many([path], options=dict(opts, client=client_opts), threads=threads,
+                                         in_process=True, step_progress=bar)
+                reports.extend(entries)
+                continue
             reports.append(make_file_report(path, res, cd_share=cd_share, frame_ms=frame_ms, replay=replay,
                                             ladder=not no_ladder, progress=bar, client=client_opts,
                                             use_stored_stats=not ci, verify_paths=fail_if_uncertified))

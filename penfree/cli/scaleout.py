@@ -75,7 +75,7 @@ def verify(specs, *, thickness, frames, mode, max_pairs, workers, scheduler, thr
 
 
 def report_entries(specs, options, *, workers, scheduler, threads):
-    """(inputs, report entries) computed on Dask, one task per file."""
+    """(inputs, report entries) computed on Dask, a task per file or frame range."""
     from ..scaleout import report_many
 
     bar = _Bar("report")

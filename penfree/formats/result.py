@@ -286,6 +286,20 @@ def _read_deformed(ds, where, frame=None, rows=None) -> np.ndarray:
     return out
 
 
+def _steps_of(f, where):
+    """The ``steps`` group of an open result file; FormatError when it is not one."""
+    link = f.get("steps", getlink=True)
+    if link is None:
+        raise FormatError(f"{where} is not a deform result; missing dataset steps/frame in {where}:/steps/frame")
+    g = f.get("steps")
+    if not isinstance(g, h5py.Group):
+        got = "a broken link" if g is None else "a dataset"
+        raise FormatError(f"steps must be a group of per-step datasets; got {got} in {where}:/steps")
+    if g.get("frame", getlink=True) is None:
+        raise FormatError(f"{where} is not a deform result; missing dataset steps/frame in {where}:/steps/frame")
+    return g
+
+
 def read_result(path, require=(), window=None) -> DeformResult:
     """Read and validate a deform result file.
 
@@ -311,15 +325,7 @@ def read_result(path, require=(), window=None) -> DeformResult:
     """
     where = str(path)
     with open_h5(path) as f:
-        link = f.get("steps", getlink=True)
-        if link is None:
-            raise FormatError(f"{where} is not a deform result; missing dataset steps/frame in {where}:/steps/frame")
-        g = f.get("steps")
-        if not isinstance(g, h5py.Group):
-            got = "a broken link" if g is None else "a dataset"
-            raise FormatError(f"steps must be a group of per-step datasets; got {got} in {where}:/steps")
-        if g.get("frame", getlink=True) is None:
-            raise FormatError(f"{where} is not a deform result; missing dataset steps/frame in {where}:/steps/frame")
+        g = _steps_of(f, where)
         seq = read_from_h5(f, where, window)
         seq.validate()
         # a window's read leaves the per-vertex datasets (S, N, ...) to take their rows
@@ -342,15 +348,22 @@ def read_result(path, require=(), window=None) -> DeformResult:
                         rows=None if window is None else rows)
 
 
+def _check_tables(f, g, steps, groups, where, require, N) -> int:
+    """The whole per-step tables and groups validated, the stored ``deformed`` by shape and
+    dtype only (`steps` then holds it unread); returns S."""
+    if "deformed" in g:
+        _check_deformed(g["deformed"], where)
+        steps["deformed"] = g["deformed"]
+    S = _check_steps(steps, f["positions"].shape[0], N, where, require=require)
+    _check_groups(groups, S, where)
+    return S
+
+
 def _window_steps(f, g, steps, groups, window, where, require, N):
     """The steps of `read_result`'s frame window: the whole tables validated (the stored
     ``deformed`` by shape and dtype), then the window's rows, ``frame`` less its start."""
     T = f["positions"].shape[0]
-    if "deformed" in g:  # validated by shape and dtype, unread
-        _check_deformed(g["deformed"], where)
-        steps["deformed"] = g["deformed"]
-    S = _check_steps(steps, T, N, where, require=require)
-    _check_groups(groups, S, where)
+    S = _check_tables(f, g, steps, groups, where, require, N)
     start, stop = frame_window(window, T, where)
     frame = np.asarray(steps["frame"], dtype=np.int64)
     rows = np.flatnonzero((frame >= start) & (frame < stop))
@@ -365,6 +378,38 @@ def _window_steps(f, g, steps, groups, window, where, require, N):
     if isinstance(stats, dict) and isinstance(stats.get("frame"), np.ndarray) and stats["frame"].dtype.kind in "iu":
         stats["frame"] = stats["frame"].astype(np.int64) - start
     return out, groups, rows
+
+
+def read_result_tables(path, require=()) -> tuple:
+    """``(result, n_frames)``: a result file's per-step tables, groups and attributes without
+    its frames, validated as `read_result` validates them.
+
+    ``result.sequence`` holds the first two frames only (topology, thickness, obstacles
+    and dtype are the file's), ``result.steps`` every per-step dataset whole except
+    ``deformed`` and the per-vertex ones (``(S, N, ...)``, e.g. ``--per-vertex``
+    residuals), ``result.groups`` every group whole; `n_frames` is the file's frame count.
+    What a report of a long recording plans its frame ranges from, before a range task
+    reads its frames (`read_result` with a window). Raises as `read_result` does.
+    """
+    where = str(path)
+    with open_h5(path) as f:
+        g = _steps_of(f, where)
+        ds = f.get("positions")
+        T = int(ds.shape[0]) if isinstance(ds, h5py.Dataset) and ds.ndim >= 1 else None
+        # fewer than two frames hold no valid step: the whole (tiny) read names what is wrong
+        seq = read_from_h5(f, where, None if T is None or T < 2 else (0, 2))
+        seq.validate()
+        N = seq.n_vertices
+        # per-vertex datasets stay unread (then dropped); ``A`` and ``b`` of a 3-vertex scene are not those
+        per_vertex = (lambda ds: ds.ndim >= 2 and ds.shape[1] == N and ds.size > 9 * ds.shape[0])
+        steps = _read_group(g, where, skip_deformed=True, lazy=per_vertex)
+        attrs = read_attrs(f, where)
+        groups = {k: _read_group(obj, where) for k, obj in f.items()
+                  if isinstance(obj, h5py.Group) and k not in SEQUENCE_NAMES}
+        _check_tables(f, g, steps, groups, where, tuple(require), N)
+        steps = {k: v for k, v in steps.items() if not isinstance(v, h5py.Dataset)}  # none stays open
+    steps["frame"] = steps["frame"].astype(np.int64)
+    return DeformResult(sequence=seq, steps=steps, attrs=attrs, groups=groups, origin=where), int(T)
 
 
 def _step_rows(content, rows, S):

@@ -1,7 +1,9 @@
 """A file's report from the library's results, and the ``penfree report`` output files.
 
-The CI checks and the certificate re-check are in `penfree.report.checks`, report.md in
-`penfree.report.markdown`, the PNG plots in `penfree.report.plots`.
+A file's entry is built from the per-step figures of its steps (`penfree.report.entry`:
+of a whole read, or of a long recording's frame ranges joined in step order, with the
+same entry). The CI checks and the certificate re-check are in `penfree.report.checks`,
+report.md in `penfree.report.markdown`, the PNG plots in `penfree.report.plots`.
 
 Frame times and speedups are *projected* (SPEC section 7): they assume a simulator
 that spends a share `f` of a frame of `T_frame` in CD and needs K CD passes per frame;
@@ -78,106 +80,36 @@ import numpy as np
 
 from .._version import __version__
 from ..formats._json import json_safe
-from .. import constants as K
 from ..constants import DEFAULT_CD_SHARE, DEFAULT_FRAME_MS
-from ..core.pipeline.ladder import model_ladder
-from ..core.trust.stats import R_HIST_EDGES, STARTS, TARGETS, compute_stats, stats_keys
-from ..core.trust.summary import PROJECTED_FORMULA, summarize
+from ..core.trust.summary import PROJECTED_FORMULA
 from ..errors import InputError
 from ..formats.atomic import atomic_dir, check_output_dir
 from .baseline import read_baseline
-from .checks import applied_maps, certificate_summary, recheck_certificates
+from .entry import (  # noqa: F401  (the report's public names, re-exported for callers of build)
+    WORST_STEPS, FileDecisions, assemble_entry, concat_parts, decide, file_part, path_verdicts, stored_stats,
+    stored_stats_checked, worst_steps,
+)
 from .markdown import render_markdown
 
 REPORT_SCHEMA = 1
-#: Rows of the worst-steps table.
-WORST_STEPS = 10
-
-
-def worst_steps(stats, n=WORST_STEPS) -> list:
-    """The `n` steps with the most deformed CD passes (K_1pct), then the smallest gain."""
-    t = "next" if np.isfinite(np.asarray(stats["k_1pct_next_deformed"], dtype=float)).any() else "pred"
-    kd = np.asarray(stats[f"k_1pct_{t}_deformed"], dtype=float)
-    kb = np.asarray(stats[f"k_1pct_{t}_baseline"], dtype=float)
-    frames = np.asarray(stats["frame"])
-    idx = [i for i in np.lexsort((frames, kb - kd, -kd)) if np.isfinite(kd[i])][:n]
-    rows = []
-    for i in idx:
-        row = {"frame": int(frames[i]), "target": t}
-        for k in ("k_1pct", "k_any", "hit_rate"):
-            for s in STARTS:
-                row[f"{k}_{s}"] = float(stats[f"{k}_{t}_{s}"][i])
-        row["k_1pct_gain"] = float(kb[i] - kd[i])
-        rows.append(row)
-    return rows
-
-
-def build_file_report(path, result, stats, *, ladder=None, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAULT_FRAME_MS,
-                      stats_source="computed", verify_paths=False) -> dict:
-    """The report entry of one result file (see the module key reference); with
-    `verify_paths`, a step counts as certified only if verify's check of its path passes
-    too (`path_verdicts`)."""
-    seq, steps = result.sequence, result.steps
-    per_step = {k: v for k, v in stats.items() if not k.startswith("r_hist_")}
-    for k in ("certificate_margin", "model", "projection", "time_fit_s"):
-        if k in steps:
-            per_step[k] = np.asarray(steps[k])
-    hist = {"edges": R_HIST_EDGES}
-    for t in TARGETS:
-        for s in STARTS:
-            h = np.asarray(stats[f"r_hist_{t}_{s}"], dtype=np.float64)
-            hist[f"{t}_{s}"] = np.nansum(h, axis=0) if h.size else np.zeros(R_HIST_EDGES.size - 1)
-    lad = None if ladder is None else {k: v for k, v in ladder.items() if k != "steps"}
-    applied = applied_maps(steps, result.groups, seq)
-    rechecked = recheck_certificates(steps, result.groups, seq, applied)
-    path_ok, why = path_verdicts(result) if verify_paths else (None, None)
-    certificate = certificate_summary(steps, rechecked if path_ok is None else rechecked & path_ok, seq,
-                                      applied=applied)
-    if path_ok is not None:
-        certificate.update(path_checked=True, n_path_failed=int(np.count_nonzero(~path_ok)),
-                           path_failed_frames=np.asarray(steps["frame"])[~path_ok].tolist())
-        if why is not None:
-            certificate["path_check_error"] = why
-    return {
-        "file": os.fspath(path),
-        "name": os.path.basename(os.fspath(path)),
-        "scene": {"kind": seq.kind, "n_vertices": seq.n_vertices, "n_frames": seq.n_frames,
-                  "n_steps": int(len(stats["frame"])), "thickness": seq.thickness,
-                  "contact_radius": seq.contact_radius, "dtype": str(seq.dtype)},
-        "deform_options": dict(result.attrs),
-        "stats_source": stats_source,
-        "summary": summarize(stats, steps, cd_share=cd_share, frame_ms=frame_ms),
-        "certificate": certificate,
-        "worst_steps": worst_steps(stats),
-        "steps": per_step,
-        "r_hist": hist,
-        "ladder": lad,
-    }
-
-
-def path_verdicts(result) -> tuple:
-    """``(ok (S,) bool, error)``: verify's verdict on each step's path (`verify_result`,
-    mode auto, the result's thickness and obstacles), or all False and verify's message
-    when it cannot check the file (e.g. per-component steps without usable maps).
-
-    A certificate proves one map's path free of new intersections within the scene only:
-    obstacles, the pairs between components that per-component maps move apart or
-    together, and at a thickness the pairs that start within ``thickness / m`` are
-    verify's to check (a map that is the identity plus a translation through the ground
-    is certified)."""
-    from ..core.pipeline.verification import verify_result
-    from ..errors import InputError
-
-    frames = np.asarray(result.steps["frame"])
-    try:
-        ok = {st.frame: st.ok for st in verify_result(result).steps}
-    except InputError as exc:
-        return np.zeros(frames.size, dtype=bool), str(exc)
-    return np.array([ok.get(int(f), False) for f in frames], dtype=bool), None
 
 
 #: Per-step datasets a report needs beyond those every reader needs.
 REPORT_REQUIRES = ("certificate_margin",)
+
+
+def _check_is_result(path):
+    from ..formats.result import is_result_file
+
+    if not os.path.isfile(path):
+        raise InputError(f"no such file: {path} (expected a penfree deform output)")
+    if not is_result_file(path):
+        raise InputError(f"{path} is not a penfree deform output (no dataset steps/frame in {path}:/steps/frame); "
+                         f"run `penfree deform {path} -o deformed.h5` and report on its output")
+
+
+def _no_steps(path):
+    return InputError(f"{path} holds no steps to report (steps/frame is empty in {path}:/steps/frame)")
 
 
 def open_result(path):
@@ -187,30 +119,54 @@ def open_result(path):
     (`REPORT_REQUIRES`), is a FormatError naming ``file:/dataset``; a result without
     steps is an InputError (a report about nothing would claim too much).
     """
-    from ..formats.result import is_result_file, read_result
+    from ..formats.result import read_result
 
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise InputError(f"no such file: {path} (expected a penfree deform output)")
-    if not is_result_file(path):
-        raise InputError(f"{path} is not a penfree deform output (no dataset steps/frame in {path}:/steps/frame); "
-                         f"run `penfree deform {path} -o deformed.h5` and report on its output")
+    _check_is_result(path)
     res = read_result(path, require=REPORT_REQUIRES)
     if not res.n_steps:
-        raise InputError(f"{path} holds no steps to report (steps/frame is empty in {path}:/steps/frame)")
+        raise _no_steps(path)
     return res
 
 
-def select_steps(result, frames=None):
+def open_tables(path) -> tuple:
+    """``(result, n_frames)``: a ``penfree deform`` output's per-step tables and groups without
+    its frames (`penfree.formats.result.read_result_tables`), checked as `open_result`
+    checks a whole read: a long recording's report plans its frame ranges from them
+    (`penfree.scaleout.report_many`), whose tasks read their frames (`read_range`)."""
+    from ..formats.result import read_result_tables
+
+    path = os.fspath(path)
+    _check_is_result(path)
+    res, n_frames = read_result_tables(path, require=REPORT_REQUIRES)
+    if not res.n_steps:
+        raise _no_steps(path)
+    return res, n_frames
+
+
+def read_range(path, lo, hi) -> tuple:
+    """``(result, first)``: the steps of frames ``lo .. hi - 1`` of a ``penfree deform`` output,
+    read with the frames they use (``lo - 1 .. hi``: a step at frame s reads s - 1, s and
+    s + 1) and nothing else; frame numbers are the window's, whose frame 0 is the file's
+    frame `first` (`entry.file_part` takes them back to the file's)."""
+    from ..formats.result import read_result
+
+    first = int(lo) - 1
+    res = read_result(os.fspath(path), require=REPORT_REQUIRES, window=(first, int(hi) + 1))
+    return select_steps(res, (int(lo) - first, int(hi) - first)), first
+
+
+def select_steps(result, frames=None, n_frames=None):
     """The result restricted to the steps whose frame lies in the ``(start, stop)`` slice.
 
     Per-step arrays of ``steps`` and of the ``stats`` group (rows = steps) are subset
-    alike; InputError when the slice selects no step.
+    alike; InputError when the slice selects no step. `n_frames`: the recording's frame
+    count when ``result.sequence`` holds fewer (`open_tables`).
     """
     if frames is None:
         return result
     fr = np.asarray(result.steps["frame"])
-    T = result.sequence.n_frames
+    T = result.sequence.n_frames if n_frames is None else int(n_frames)
     keep = np.isin(fr, np.arange(T)[slice(*frames)])
     if not keep.any():
         raise InputError(f"--frames {frames[0] if frames[0] is not None else ''}:"
@@ -227,64 +183,17 @@ def select_steps(result, frames=None):
     if isinstance(groups.get("component_maps"), dict):  # per-step maps; labels are per vertex
         groups["component_maps"] = {k: (sub({k: v})[k] if k != "labels" else v)
                                     for k, v in groups["component_maps"].items()}
-    return dataclasses.replace(result, steps=sub(result.steps), groups=groups)
-
-
-def _stats_problem(st, key, S) -> str | None:
-    """Why the stored ``stats/<key>`` cannot be used (None if it can)."""
-    v = st[key]
-    if isinstance(v, dict):
-        return f"stats/{key} is a group, expected a dataset"
-    a = np.asarray(v)
-    if a.dtype.kind not in "biuf":
-        return f"stats/{key} must be numeric; got {a.dtype}"
-    want = 2 if key.startswith("r_hist_") else 1
-    if a.ndim != want or a.shape[0] != S or (want == 2 and a.shape[1] != R_HIST_EDGES.size - 1):
-        shape = f"({S}, {R_HIST_EDGES.size - 1})" if want == 2 else f"({S},)"
-        return f"stats/{key} must be {shape}; got {a.shape}"
-    return None
-
-
-def stored_stats_checked(result, replay=False) -> tuple:
-    """``(stats, note)``: the file's ``stats/`` group if complete and usable, else None.
-
-    `note` says why a complete ``stats/`` group was ignored (a non-numeric value, a
-    wrong length, frames other than ``steps/frame``), so that the report can say the
-    statistics were recomputed; None when there was nothing to ignore.
-    """
-    st = result.groups.get("stats")
-    keys = stats_keys(replay)
-    if not isinstance(st, dict) or not set(keys) <= set(st):
-        return None, None
-    S = int(np.size(result.steps["frame"]))
-    for k in keys:
-        problem = _stats_problem(st, k, S)
-        if problem is not None:
-            return None, f"{problem} in {result.origin}:/stats/{k}"
-    if np.any(np.asarray(st["frame"]) != np.asarray(result.steps["frame"])):
-        return None, f"stats/frame differs from steps/frame in {result.origin}:/stats/frame"
-    return {k: np.asarray(st[k]) for k in keys}, None
-
-
-def stored_stats(result, replay=False):
-    """The file's ``stats/`` group if it holds every key `compute_stats` would give, each
-    numeric with one row per step and the same frames as ``steps/frame``; else None."""
-    return stored_stats_checked(result, replay)[0]
-
-
-def _stats_differ(stored, computed) -> list:
-    """Keys of `stored` whose values differ from `computed` (NaN equals NaN)."""
-    out = []
-    for k, v in stored.items():
-        a, b = np.asarray(v, dtype=np.float64), np.asarray(computed.get(k), dtype=np.float64)
-        if a.shape != b.shape or not np.allclose(a, b, rtol=K.STORED_STATS_RTOL, atol=0.0, equal_nan=True):
-            out.append(k)
-    return out
+    rows = None if result.rows is None else np.asarray(result.rows)[keep]  # a window's: the file's rows
+    return dataclasses.replace(result, steps=sub(result.steps), groups=groups, rows=rows)
 
 
 def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAULT_FRAME_MS, replay=False,
                      ladder=True, progress=None, client=None, use_stored_stats=True, verify_paths=False) -> dict:
     """Statistics (read or computed), model ladder and the report entry of one result.
+
+    `entry.assemble_entry` of the `entry.file_part` of `result`: a long recording is
+    reported a frame range at a time through the same two functions
+    (`penfree.scaleout.report_many`), with the same entry.
 
     Parameters
     ----------
@@ -299,7 +208,7 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
     ladder : bool
         Re-fit every step with every model of the ladder.
     progress : callable, optional
-        Called once per step of each computing phase (statistics, ladder).
+        Called once per step of each computing phase (statistics, ladder, client).
     client : dict, optional
         Options of the real-client replay (`penfree.report.client.client_section`); its
         section is stored under ``client``.
@@ -311,36 +220,9 @@ def make_file_report(path, result, *, cd_share=DEFAULT_CD_SHARE, frame_ms=DEFAUL
         A step is certified only if verify's check of its path passes too
         (`path_verdicts`; ``--fail-if-uncertified``).
     """
-    stats, note = stored_stats_checked(result, replay)
-    if note is not None:
-        note = f"stored statistics ignored and recomputed: {note}"
-    source = "file"
-    if stats is None or not use_stored_stats:
-        stored, stats, source = stats, compute_stats(result, replay=replay, progress=progress), "computed"
-        differ = [] if stored is None else _stats_differ(stored, stats)
-        if differ:
-            note = (f"stored statistics differ from those computed from the positions and steps/deformed "
-                    f"({', '.join(differ[:4])}{', ...' if len(differ) > 4 else ''} in {result.origin}:/stats); "
-                    f"the computed ones are used")
-    lad = None
-    if ladder:
-        seq, steps = result.sequence, result.steps
-        opts = result.attrs.get("options")
-        # Re-fit with the projection mode deform used, so the affine row matches the file.
-        projection = opts.get("projection", "auto") if isinstance(opts, dict) else "auto"
-        lad = model_ladder(seq.positions, steps["frame"], edges=seq.edges, faces=seq.faces,
-                           thickness=seq.thickness, weights=seq.weights, margins=steps.get("margin_required"),
-                           projection=projection, replay=replay, progress=progress,
-                           contact_radius=seq.contact_radius)
-    rep = build_file_report(path, result, stats, ladder=lad, cd_share=cd_share, frame_ms=frame_ms,
-                            stats_source=source, verify_paths=verify_paths)
-    if note is not None:
-        rep["stats_note"] = note
-    if client:
-        from .client import client_section
-
-        rep["client"] = client_section(result, progress=progress, **client)
-    return rep
+    part = file_part(result, replay=replay, ladder=ladder, client=client, use_stored_stats=use_stored_stats,
+                     verify_paths=verify_paths, progress=progress)
+    return assemble_entry(path, result, part, cd_share=cd_share, frame_ms=frame_ms)
 
 
 def load_report_json(path) -> dict:
@@ -391,7 +273,7 @@ def write_report(outdir, reports, overwrite=False, *, options=None, checks=None,
     outdir : str or os.PathLike
         Report directory (created; an existing one is replaced only with `overwrite`).
     reports : list of dict
-        `build_file_report` entries, one per input file.
+        `make_file_report` entries, one per input file.
     overwrite : bool
     options : dict, optional
         Report options recorded under ``options`` (cd_share, frame_ms, ...).

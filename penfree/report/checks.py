@@ -210,17 +210,21 @@ def recheck_certificates(steps, groups=None, seq=None, applied=None) -> np.ndarr
     return ok & (applied_maps(steps, groups, seq) if applied is None else np.asarray(applied, dtype=bool))
 
 
-def _started_dirty(steps, seq, frames):
+def started_dirty(steps, seq=None):
+    """(S,) bool: the steps whose start state already held intersections, from
+    ``steps/start_intersections``, else counted on `seq` (`start_state_intersections`);
+    None without either."""
     if "start_intersections" in steps:
-        return int(np.count_nonzero(np.asarray(steps["start_intersections"]) > 0))
+        return np.asarray(steps["start_intersections"]) > 0
     if seq is None:
         return None
     from ..core.pipeline.deform import start_state_intersections
 
-    return int(np.count_nonzero(start_state_intersections(seq, np.asarray(frames, dtype=np.int64)) > 0))
+    frames = np.asarray(steps.get("frame", ()), dtype=np.int64)
+    return start_state_intersections(seq, frames) > 0
 
 
-def certificate_summary(steps, rechecked=None, seq=None, applied=None) -> dict:
+def certificate_summary(steps, rechecked=None, seq=None, applied=None, dirty=None) -> dict:
     """Min margin, all certified yes/no, models and projections used, from ``steps/``.
 
     A step counts as certified when its ``certificate_margin`` is finite and at least
@@ -229,7 +233,8 @@ def certificate_summary(steps, rechecked=None, seq=None, applied=None) -> dict:
     stored deformed state is its image. `applied` (from `applied_maps`) adds
     ``n_not_applied`` and ``not_applied_frames``: the steps whose ``steps/deformed`` is
     not the image of the stored map. The steps that started dirty come from
-    ``steps/start_intersections``, else are counted on `seq` when given.
+    ``steps/start_intersections``, else are counted on `seq` when given (`started_dirty`),
+    or are `dirty` ((S,) bool, `started_dirty` output) when given.
     """
     frames = np.asarray(steps.get("frame", np.arange(np.size(steps.get("certificate_margin", [])))))
     # No stored margin claims nothing: every step counts as not certified.
@@ -248,7 +253,7 @@ def certificate_summary(steps, rechecked=None, seq=None, applied=None) -> dict:
         "all_certified": bool(ok.all()) if ok.size else False,
         "n_uncertified": int(np.count_nonzero(~ok)),
         "uncertified_frames": frames[~ok].tolist(),
-        "n_started_dirty": _started_dirty(steps, seq, frames),
+        "n_started_dirty": _count(started_dirty(dict(steps, frame=frames), seq) if dirty is None else dirty),
         "models": counts("model"),
         "projections": counts("projection"),
     }
@@ -257,6 +262,10 @@ def certificate_summary(steps, rechecked=None, seq=None, applied=None) -> dict:
         out["n_not_applied"] = int(np.count_nonzero(bad))
         out["not_applied_frames"] = frames[bad].tolist() if bad.shape == frames.shape else frames.tolist()
     return out
+
+
+def _count(flags):
+    return None if flags is None else int(np.count_nonzero(flags))
 
 
 def entry_labels(reports) -> list:
@@ -323,7 +332,7 @@ def run_checks(reports, *, fail_if_uncertified=False, min_speedup=None, min_hit_
     Parameters
     ----------
     reports : list of dict
-        `build_file_report` entries.
+        `make_file_report` entries.
     fail_if_uncertified : bool
         Every step's certificate margin must be finite and >= its required margin, its
         map(s) must pass the certificate again and its deformed state must be their image.

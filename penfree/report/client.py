@@ -17,21 +17,58 @@ import numpy as np
 
 from ..core.trust.client_stats import client_counts, expand, resolve_dhat, rule_baseline, summarize_counts
 from ..core.trust.client import RADIUS_RULES, TRUNCATIONS
+from ..errors import InputError
 
 
 def client_section(result, *, client="ipctk", truncation="both", radius="both", dhat=None, every=1,
                    progress=None) -> dict:
     """Replay every `every`-th step of a deform result through the client (module doc)."""
-    seq, steps = result.sequence, result.steps
+    options = client_options(result.sequence, client=client, truncation=truncation, radius=radius, dhat=dhat,
+                             every=every)
+    return section_of(options, client_steps(result, options, progress=progress))
+
+
+def client_options(seq, *, client="ipctk", truncation="both", radius="both", dhat=None, every=1) -> dict:
+    """The section's ``options`` for a result of sequence `seq` (validated: truncations, radius
+    rules and dhat resolved as the replay takes them)."""
     truncations = expand(truncation, TRUNCATIONS)
     radii = expand(radius, RADIUS_RULES)
     dhat = resolve_dhat(dhat, seq.contact_radius, seq.thickness)
-    counts = client_counts(seq.positions, steps["deformed"], steps["frame"], edges=seq.edges, faces=seq.faces,
-                           dhat=dhat, thickness=seq.thickness, truncations=truncations, radii=radii, every=every,
-                           client=client, models=steps.get("model"), progress=progress)
+    return {"client": client, "truncations": list(truncations), "radius_rules": list(radii),
+            "dhat": dhat, "every": int(every), "thickness": float(seq.thickness)}
+
+
+def client_frames(frames, n_frames, every) -> np.ndarray:
+    """The frames of the steps `client_counts` replays: those with a next frame among the
+    `n_frames` of the recording, every `every`-th of them."""
+    if int(every) < 1:
+        raise InputError(f"--every must be >= 1; got {every}")
+    frames = np.asarray(frames, dtype=np.int64)
+    return frames[frames + 1 < n_frames][::int(every)]
+
+
+def client_steps(result, options, *, frames=None, progress=None) -> dict:
+    """`client_counts` of `result`'s steps under `client_options` `options`: every
+    ``every``-th step with a next frame, or with `frames` the steps of exactly those
+    frames (a frame range of a long recording, the picks made over all its steps by
+    `client_frames`, in the result's frame numbers)."""
+    seq, steps = result.sequence, result.steps
+    deformed, fr, models, every = steps["deformed"], steps["frame"], steps.get("model"), options["every"]
+    if frames is not None:
+        idx = np.flatnonzero(np.isin(np.asarray(fr), frames))
+        deformed, fr, every = deformed[idx], np.asarray(fr)[idx], 1
+        models = None if models is None else np.asarray(models)[idx]
+    return client_counts(seq.positions, deformed, fr, edges=seq.edges, faces=seq.faces, dhat=options["dhat"],
+                         thickness=seq.thickness, truncations=tuple(options["truncations"]),
+                         radii=tuple(options["radius_rules"]), every=every, client=options["client"],
+                         models=models, progress=progress)
+
+
+def section_of(options, counts) -> dict:
+    """The section from its options and the per-step counts of all replayed steps (of one
+    `client_steps` call, or of frame ranges concatenated in step order)."""
     return {
-        "options": {"client": client, "truncations": list(truncations), "radius_rules": list(radii),
-                    "dhat": dhat, "every": int(every), "thickness": float(seq.thickness)},
+        "options": options,
         "summary": summarize_counts(counts),
         "steps": {k: np.asarray(v).tolist() for k, v in counts.items()},
     }

@@ -4,12 +4,14 @@
 globs); with several inputs, ``--workers N`` or ``--scheduler ADDRESS`` the work runs on
 `dask.distributed` (an optional extra: ``pip install 'penfree[dask]'``).
 
-Partitioning. ``deform`` and ``verify`` split each file into ranges of steps; a step `s`
-reads frames ``s - 1``, ``s`` and ``s + 1`` only, so ranges of steps need overlapping
-frames and nothing else: a ``deform`` range reads just the frames ``lo - 1 .. hi`` of
-its file (HDF5 ``frame_window``) and runs the library on them, its frame numbers
-shifted back to the file's; ``verify`` tasks read their file and select their steps
-with a frame slice.
+Partitioning. ``deform``, ``verify`` and ``report`` split each file into ranges of steps;
+a step `s` reads frames ``s - 1``, ``s`` and ``s + 1`` only, so ranges of steps need
+overlapping frames and nothing else: a ``deform`` range reads just the frames
+``lo - 1 .. hi`` of its file (HDF5 ``frame_window``) and runs the library on them, its
+frame numbers shifted back to the file's; a ``verify`` range of a result reads the frames
+of its steps (``read_result(window=)``), a ``report`` range those and their neighbours
+(``report.build.read_range``). A file whose frames exceed `plan.MAX_TASK_BYTES` always
+goes in ranges of bounded size, on a serial run too (`cluster.InProcess`).
 
 Outputs. ``deform`` of one input file writes the ``-o`` file, as a serial run; several
 inputs (several files, a directory of recordings, a pattern) write ``<dir>/<stem>.h5``.
@@ -24,8 +26,10 @@ the layout of a serial run. When every task succeeded the results are moved to t
 names together (`penfree.formats.atomic`); on any failure or interrupt none appears,
 and the run removes its folder and the directories it created, nothing else. Only file
 names and the small per-step tables travel back to the driver; results are compressed
-and written by the workers in parallel. ``report`` runs one task per file (statistics
-and ladder are per file).
+and written by the workers in parallel. ``report`` of a split file reads only its
+per-step tables on the driver, decides there what needs every step (a stored ``stats/``
+group, verify's path-check error, the client's replayed steps), and joins the ranges'
+per-step figures in step order into the entry of a whole read (`penfree.report.entry`).
 
 Results are those of a serial run, bit for bit: every step is computed by the same
 code from the same frames, and the per-step tables are merged in frame order (the

@@ -101,14 +101,15 @@ def test_read_validates(tmp_path, rng, name, value, expect):
     _assert_read_fails(tmp_path, rng, name, value, expect)
 
 
-def _assert_read_fails(tmp_path, rng, name, value, expect):
-    """A written result with dataset `name` replaced by `value` reads as the error `expect`."""
+def _assert_read_fails(tmp_path, rng, name, value, expect, reader=read_result):
+    """A written result with dataset `name` replaced by `value` reads (with `reader`) as the
+    error `expect`."""
     seq, steps, attrs, _ = _inputs(rng)
     p = str(tmp_path / "r.h5")
     write_result(p, seq, steps, attrs)
     _tamper(p, name, value)
     with pytest.raises(FormatError) as err:
-        read_result(p)
+        reader(p)
     assert expect.format(p=p) in str(err.value)
 
 
@@ -247,3 +248,44 @@ def test_damaged_hdf5_is_reported_not_taken_for_a_sequence(tmp_path, rng):
         is_result_file(tmp_path / "trunc.h5")
     os.mkdir(tmp_path / "dir.h5")
     assert not is_result_file(tmp_path / "dir.h5")
+
+
+def test_tables_read_equals_the_whole_read_without_frames(tmp_path, rng, monkeypatch):
+    """`read_result_tables`: the per-step tables and groups of a whole read, the frame count,
+    and of the frames only 0 and 1; no deformed state nor per-vertex dataset is read (a long
+    recording's report plans its ranges from it). ``A`` and ``b`` of a 3-vertex scene are kept."""
+    from penfree.formats import hdf5
+    from penfree.formats.result import read_result_tables
+
+    for N in (12, 3):
+        seq, steps, attrs, groups = _inputs(rng, N=N)
+        steps["residual_next_per_vertex"] = rng.random((4, N))
+        p = str(tmp_path / f"r{N}.h5")
+        write_result(p, seq, steps, attrs, groups=groups)
+        whole = read_result(p)
+        windows, real = [], hdf5.read_positions
+        monkeypatch.setattr(hdf5, "read_positions", lambda ds, where, name="positions", window=None:
+                            windows.append(window) or real(ds, where, name, window))
+        res, T = read_result_tables(p)
+        monkeypatch.setattr(hdf5, "read_positions", real)
+        assert T == 5 and windows == [(0, 2)] and res.origin == p and res.rows is None
+        np.testing.assert_array_equal(res.sequence.positions, whole.sequence.positions[:2])
+        dropped = {"deformed"} | ({"residual_next_per_vertex"} if N > 3 else set())
+        assert set(res.steps) == set(whole.steps) - dropped
+        for k, v in res.steps.items():
+            np.testing.assert_array_equal(v, whole.steps[k], err_msg=k)
+        assert res.steps["frame"].dtype == np.int64
+        assert res.attrs == whole.attrs and res.groups["stats"]["K_any"].tolist() == [0, 1, 2, 3]
+
+
+@pytest.mark.parametrize("name,value,expect", [
+    ("steps/frame", np.array([1, 2, 3, 5]), "steps/frame must be in [1, 4] for 5 frames; found 5 in {p}:/steps/frame"),
+    ("steps/A", np.zeros((4, 3, 2)), "steps/A must be (4, 3, 3); got (4, 3, 2) in {p}:/steps/A"),
+    ("steps/deformed", np.zeros((4, 5, 3)), "steps/deformed must be (4, 6, 3); got (4, 5, 3) in {p}:/steps/deformed"),
+    ("steps/rank", np.zeros(7), "steps/rank must have one row per step (4)"),
+    ("steps/model", np.arange(4), "steps/model must be (S,) strings; got int64 in {p}:/steps/model"),
+], ids=["frame-too-big", "A-shape", "deformed-vertices", "short-column", "model-not-text"])
+def test_tables_read_validates_as_the_whole_read(tmp_path, rng, name, value, expect):
+    from penfree.formats.result import read_result_tables
+
+    _assert_read_fails(tmp_path, rng, name, value, expect, reader=read_result_tables)

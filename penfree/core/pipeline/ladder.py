@@ -29,9 +29,12 @@ LADDER_MODELS = ("translation", "rigid", "similarity", "affine", "auto")
 #: Untimed calls per model before the timed ones (Numba compiles some paths lazily).
 LADDER_WARMUP_CALLS = 2
 
-#: Per-step figures kept for every model (arrays (S,) in ``ladder["steps"][model]``).
+#: Per-step figures kept for every model (arrays (S,) float64 in ``ladder["steps"][model]``).
 LADDER_FIGURES = ("fit_ms", "residual_next_rms", "residual_pred_rms", "k_1pct_next", "k_any_next",
                   "hit_rate_next", "certificate_margin", "replay_k_1pct_next", "replay_k_any_next")
+#: Per-step names kept beside them: ``model_used`` (S,) str, the model a fit actually used
+#: (``auto``'s pick, a fallback; "" for the rows without a fit: ``baseline``, ``x_pred``).
+LADDER_NAMES = ("model_used",)
 
 #: Fixed models `auto` is compared with when counting how often it chose the best.
 FIXED_MODELS = ("translation", "rigid", "similarity", "affine")
@@ -106,10 +109,10 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
         next frame; bounds at that model's deformed state with the step's `r_q`),
         ``certificate_margin_mean``, ``certificate_margin_min``, ``models_used``
         ({name: steps}, what ``auto`` picked or a fallback used);
-        ``steps``: {model: {figure: (S,) float64}} for the figures in `LADDER_FIGURES`;
-        ``auto_best_rate``: fraction of the steps with a next frame on which ``auto``'s
-        actual K_1pct was the smallest of baseline and the fixed models (NaN without
-        ``auto``).
+        ``steps``: {model: {figure: (S,) float64}} for the figures in `LADDER_FIGURES`, and
+        the per-step names of `LADDER_NAMES`; ``auto_best_rate``: fraction of the steps
+        with a next frame on which ``auto``'s actual K_1pct was the smallest of baseline
+        and the fixed models (NaN without ``auto``).
 
     Notes
     -----
@@ -118,6 +121,32 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
     projection + certificate + writing `x_def`); on a shared machine single calls can
     spike, which is why the median is reported beside the mean. Cost: one bound computation per model and
     step with a next frame, plus one for the baseline.
+
+    It is `ladder_summary` of `ladder_steps`: the steps of a long recording can be
+    scored a frame range at a time and their per-step figures concatenated in step
+    order first (`concat_ladder_steps`), with the same result.
+    """
+    return ladder_summary(ladder_steps(
+        positions, frames, edges=edges, faces=faces, thickness=thickness, weights=weights, margins=margins,
+        models=models, projection=projection, gamma=gamma, bounds_fn=bounds_fn, fit_fn=fit_fn, ceiling=ceiling,
+        replay=replay, replay_cap=replay_cap, components=components, progress=progress,
+        contact_radius=contact_radius))
+
+
+def ladder_steps(positions, frames, *, edges=None, faces=None, thickness=0.0, weights=None, margins=None,
+                 models=LADDER_MODELS, projection="auto", gamma=DEFAULT_GAMMA, bounds_fn=None, fit_fn=None,
+                 ceiling=True, replay=False, replay_cap=DEFAULT_REPLAY_CAP, components=None,
+                 progress=None, contact_radius=0.0) -> dict:
+    """The per-step part of `model_ladder` (same parameters): every step scored, nothing summed.
+
+    Returns
+    -------
+    dict
+        ``models`` (list, ``"baseline"`` first), ``has_next`` (S,) bool (the step has
+        a next frame among `positions`), ``steps``: {model: {figure: (S,)}} with the
+        figures of `LADDER_FIGURES` and the names of `LADDER_NAMES`. A step's figures
+        depend on its frames ``s - 1``, ``s`` and ``s + 1`` only: a frame range holding
+        them scores it as the whole recording does.
     """
     positions = np.asarray(positions)
     frames = np.asarray(frames, dtype=np.int64)
@@ -131,7 +160,8 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
     fitter = _LadderFit(positions, models, edges=edges, faces=faces, thickness=thickness, weights=weights,
                         projection=projection, gamma=gamma, fit_fn=fit_fn, components=components)
     per = {m: {f: np.full(S, np.nan) for f in LADDER_FIGURES} for m in names}
-    used = {m: {} for m in names}
+    for m in names:
+        per[m]["model_used"] = np.full(S, "", dtype=object)
     if S:
         fitter.warm_up(frames[0])
     for i, s in enumerate(frames):
@@ -142,19 +172,39 @@ def model_ladder(positions, frames, *, edges=None, faces=None, thickness=0.0, we
             bounds_fn.begin_step(x64, r_q)
         states = {"baseline": (x64, 0.0, math.nan)}
         for m in models:
-            name, states[m] = fitter.fit(m, x_prev, x, x64, r_q, float(margins[i]),
-                                         separations=getattr(bounds_fn, "separations", None))
-            used[m][name] = used[m].get(name, 0) + 1
+            per[m]["model_used"][i], states[m] = fitter.fit(m, x_prev, x, x64, r_q, float(margins[i]),
+                                                            separations=getattr(bounds_fn, "separations", None))
         if ceiling:
             states["x_pred"] = (x_pred, math.nan, math.nan)
         for m, state in states.items():
             _score(per[m], i, state, x_pred, x_next, r_q, bounds_fn, replay, replay_cap)
         if progress is not None:
             progress()
-    n_next = int(np.count_nonzero(frames + 1 < T))
-    return {"models": names, "n_steps": int(S), "n_steps_next": n_next,
-            "rows": [_row(m, per[m], used[m]) for m in names], "steps": per,
-            "auto_best_rate": _auto_best_rate(per, models)}
+    for m in names:
+        per[m]["model_used"] = per[m]["model_used"].astype(str)
+    return {"models": names, "has_next": frames + 1 < T, "steps": per}
+
+
+def ladder_summary(part) -> dict:
+    """`model_ladder`'s output from `ladder_steps` output (of all steps, or of frame ranges
+    concatenated in step order by `concat_ladder_steps`): the rows, the step counts and
+    ``auto_best_rate``, each from the per-step figures alone."""
+    names, per = list(part["models"]), part["steps"]
+    models = [m for m in names if m not in ("baseline", "x_pred")]
+    has_next = np.asarray(part["has_next"], dtype=bool)
+    return {"models": names, "n_steps": int(has_next.size), "n_steps_next": int(np.count_nonzero(has_next)),
+            "rows": [_row(m, per[m]) for m in names], "steps": per, "auto_best_rate": _auto_best_rate(per, models)}
+
+
+def concat_ladder_steps(parts) -> dict:
+    """`ladder_steps` outputs of consecutive frame ranges joined in step order (the same
+    models in each)."""
+    names = list(parts[0]["models"])
+    if any(list(p["models"]) != names for p in parts):
+        raise ValueError("ladder parts of different models cannot be joined")
+    return {"models": names, "has_next": np.concatenate([p["has_next"] for p in parts]),
+            "steps": {m: {k: np.concatenate([p["steps"][m][k] for p in parts]) for k in parts[0]["steps"][m]}
+                      for m in names}}
 
 
 class _LadderFit:
@@ -232,8 +282,10 @@ def _score(row, i, state, x_pred, x_next, r_q, bounds_fn, replay, replay_cap):
         row["replay_k_1pct_next"][i], row["replay_k_any_next"][i] = rp["k_1pct"], rp["k_any"]
 
 
-def _row(m, p, used):
+def _row(m, p):
     """The ladder row of model `m` from its per-step figures `p`."""
+    names, counts = np.unique(np.asarray(p["model_used"], dtype=str), return_counts=True)
+    used = {str(a): int(b) for a, b in zip(names, counts) if a}
     return {
         "model": m,
         "fit_ms_mean": finite_mean(p["fit_ms"]),

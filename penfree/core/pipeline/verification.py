@@ -239,6 +239,16 @@ def _result_lists(seq, mode):
     return result_lists(E, F)
 
 
+def check_component_maps(res) -> None:
+    """Raise the InputError `verify_result` raises at its first per-component step (``steps/A``
+    not finite) whose maps it cannot use, without verifying anything: the per-step tables
+    and groups suffice (`formats.result.read_result_tables`)."""
+    A = np.asarray(res.steps["A"], dtype=np.float64)
+    for k in range(A.shape[0]):
+        if not np.isfinite(A[k]).all():
+            _component_maps(res, k)
+
+
 def _component_maps(res, k):
     """The distinct maps of per-component step k (``component_maps/A``, validated): a step
     whose ``steps/A`` is NaN needs them."""

@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from penfree.core.pipeline.ladder import LADDER_FIGURES, LADDER_MODELS, model_ladder
+from penfree.core.pipeline.ladder import LADDER_FIGURES, LADDER_MODELS, LADDER_NAMES, model_ladder
 
 
 def _affine_motion(rng, T=5, n=30):
@@ -73,8 +73,11 @@ def test_ladder_with_oracle_fit(rng):
     assert rows["x_pred"]["residual_pred_rms"] == 0.0
     assert rows["x_pred"]["residual_next_rms"] == pytest.approx(rows["affine"]["residual_next_rms"], abs=1e-12)
     for m in lad["models"]:
-        assert set(lad["steps"][m]) == set(LADDER_FIGURES)
+        assert set(lad["steps"][m]) == set(LADDER_FIGURES) | set(LADDER_NAMES)
         assert np.isnan(lad["steps"][m]["k_1pct_next"][-1])  # the last step has no next frame
+    # the per-step names behind models_used ("" where no fit ran)
+    assert lad["steps"]["affine"]["model_used"].tolist() == ["affine"] * 4
+    assert lad["steps"]["baseline"]["model_used"].tolist() == [""] * 4
 
 
 def test_margin_one_means_translation(rng):
@@ -101,3 +104,28 @@ def test_ladder_with_fit_step(rng):
     for m in LADDER_MODELS:
         assert rows[m]["certificate_margin_min"] >= 0.0  # every applied map is certified
         assert rows[m]["residual_pred_rms"] <= rows["baseline"]["residual_pred_rms"] * (1 + 1e-12)
+
+
+def test_ladder_of_step_ranges_joined_equals_the_whole(rng):
+    """`ladder_steps` of consecutive frame ranges (each with only the frames its steps read),
+    joined in step order, summarise to the whole ladder: every row, count and rate (the fit
+    wall times aside), `models_used` and `auto_best_rate` from the per-step figures alone."""
+    from penfree.core.pipeline.ladder import concat_ladder_steps, ladder_steps, ladder_summary
+
+    pos = _affine_motion(rng, T=9)
+    pos[5:] += 0.01 * rng.normal(size=pos[5:].shape)  # not exactly affine: the models differ
+    frames = np.arange(1, 9)
+    kw = dict(models=("translation", "affine", "auto"), bounds_fn=_far_bounds, fit_fn=_lstsq_fit)
+    whole = model_ladder(pos, frames, **kw)
+    parts = [ladder_steps(pos[lo - 1:min(hi + 1, 9)], frames[(frames >= lo) & (frames < hi)] - (lo - 1), **kw)
+             for lo, hi in ((1, 4), (4, 7), (7, 9))]
+    joined = ladder_summary(concat_ladder_steps(parts))
+    assert (joined["n_steps"], joined["n_steps_next"]) == (whole["n_steps"], whole["n_steps_next"]) == (8, 7)
+    assert joined["auto_best_rate"] == whole["auto_best_rate"]
+    for a, b in zip(joined["rows"], whole["rows"]):
+        a, b = dict(a), dict(b)
+        for k in ("fit_ms_mean", "fit_ms_median"):
+            a.pop(k), b.pop(k)
+        assert sorted(a) == sorted(b)
+        for k in a:  # bit for bit, NaN equal to NaN
+            assert a[k] == b[k] or (isinstance(a[k], float) and math.isnan(a[k]) and math.isnan(b[k])), (k, a, b)
