@@ -739,3 +739,22 @@ def test_report_on_dask_splits_a_file_in_ranges_and_equals_serial(tmp_path, sche
     assert len(spy) >= 2 and all(t.lo is not None for t in spy), spy
     a, b = (json.loads((tmp_path / d / "report.json").read_text()) for d in ("dask", "serial"))
     assert _without_fit_times(a) == _without_fit_times(b)
+
+
+def test_report_client_on_dask_equals_serial(tmp_path, scheduler):
+    """``report --client ipctk --scheduler`` was refused; the ranges now replay their steps
+    through the real client on the workers (every 2nd step of the file, as a serial run
+    picks them), and the client section equals the serial report's."""
+    import json
+
+    pytest.importorskip("ipctk")
+    out = _plate_result(tmp_path)
+    runner = CliRunner()
+    args = ["--no-plots", "--no-ladder", "--client", "ipctk", "--every", "2"]
+    serial = runner.invoke(main, ["report", out, "-o", str(tmp_path / "serial"), *args])
+    assert serial.exit_code == 0, serial.output
+    r = runner.invoke(main, ["report", out, "-o", str(tmp_path / "dask"), *args, "--scheduler", scheduler])
+    assert r.exit_code == 0, r.output
+    a, b = (json.loads((tmp_path / d / "report.json").read_text()) for d in ("dask", "serial"))
+    assert a["files"][0]["client"] == b["files"][0]["client"] and b["files"][0]["client"]["steps"]["frame"]
+    assert _without_fit_times(a) == _without_fit_times(b)

@@ -116,12 +116,10 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
     reports = []
     # A stored stats/ group is a cache for reading; a CI check never trusts it.
     opts = dict(frames=frame_slice, cd_share=cd_share, frame_ms=frame_ms, replay=replay, ladder=not no_ladder,
-                use_stored_stats=not ci, verify_paths=fail_if_uncertified)
+                use_stored_stats=not ci, verify_paths=fail_if_uncertified, client=client_opts)
     if scale:  # several inputs / Dask: a task per file or frame range (penfree.scaleout)
         from . import scaleout
 
-        if client:
-            raise InputError("--client is not supported with --workers or --scheduler")
         files, reports = scaleout.report_entries(files, opts, workers=workers, scheduler=scheduler, threads=threads)
     for path, res, lg in zip(files, results if not scale else (), long):
         work = res.n_steps * ((ci or stored_stats(res, replay) is None) + (not no_ladder)) + (
@@ -130,7 +128,7 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
             if lg:  # frames beyond MAX_TASK_BYTES: its frame ranges one after another, as a worker would
                 from ..scaleout import report_many
 
-                _, entries = report_many([path], options=dict(opts, client=client_opts), threads=threads,
+                _, entries = report_many([path], options=opts, threads=threads,
                                          in_process=True, step_progress=bar)
                 reports.extend(entries)
                 continue

@@ -2,8 +2,8 @@
 
 Hypothesis builds HDF5 files with random shapes, dtypes, values, attributes and
 links (soft, external, dangling, groups where datasets belong) for the sequence
-layout and the deform-result layout, and runs ``info``, ``verify`` and
-``deform`` on them through the `cli` fixture: exit 0, 1 or 2 only, one stderr
+layout and the deform-result layout, and runs ``info``, ``verify``, ``deform`` and
+``report`` (also with every file long: in frame ranges) on them through the `cli` fixture: exit 0, 1 or 2 only, one stderr
 line on 2, nothing written but the named output, no traceback.
 """
 
@@ -139,13 +139,26 @@ def h5_layouts(draw):
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
                                                                   HealthCheck.too_slow])
-@given(layout=h5_layouts(), command=st.sampled_from(["info", "verify", "deform"]))
+@given(layout=h5_layouts(), command=st.sampled_from(["info", "verify", "deform", "report", "report-long"]))
 def test_no_hdf5_layout_reaches_a_traceback(cli, tmp_path_factory, layout, command):
+    """(``report-long``: `report` with every file long, read by its tables then in ranges.)"""
+    import sys
+
+    import penfree.scaleout.plan  # noqa: F401 (patched below)
+
     d = tmp_path_factory.mktemp("fuzz")
     src = d / "in.h5"
     layout(str(src))
-    args = [command, src] + (["-o", d / "out.h5"] if command == "deform" else [])
-    r = cli(*args, folder=d)  # the fixture asserts: exit 0/1/2, one line on 2, no traceback, nothing else written
+    out = {"deform": ["-o", d / "out.h5"], "report": ["-o", d / "rep", "--no-plots"]}
+    command, long_file = command.split("-")[0], command.endswith("-long")
+    args = [command, src] + out.get(command, [])
+    plan = sys.modules["penfree.scaleout.plan"]
+    saved = plan.MAX_TASK_BYTES
+    plan.MAX_TASK_BYTES = 1 if long_file else saved
+    try:  # the fixture asserts: exit 0/1/2, one line on 2, no traceback, nothing else written
+        r = cli(*args, folder=d)
+    finally:
+        plan.MAX_TASK_BYTES = saved
     assert r.exit_code in (0, 1, 2)
 
 
