@@ -234,15 +234,16 @@ def _check_topology(arr, k, n, where, name):
     if a.ndim != 2 or a.shape[1] != k:
         raise InputError(f"{name} must be (M, {k}); got {a.shape} in {where}:/{name}")
     if not np.issubdtype(a.dtype, np.integer):
-        if np.issubdtype(a.dtype, np.floating) and np.all(np.isfinite(a)) and np.all(a == np.round(a)):
-            a = a.astype(np.int64)
-        else:
+        if not (np.issubdtype(a.dtype, np.floating) and np.all(np.isfinite(a)) and np.all(a == np.round(a))):
             raise InputError(f"{name} must be integer indices; got {a.dtype} in {where}:/{name}")
-    lo, hi = int(a.min()), int(a.max())  # before the int64 cast: report a uint64 index as given, not wrapped
-    a = a.astype(np.int64)
+    # before the int64 cast: report a uint64 index as given, not wrapped, and a whole float as
+    # given (1e308 has no int64)
+    lo, hi = a.min(), a.max()
     if lo < 0 or hi >= n:
         bad = lo if lo < 0 else hi
+        bad = f"{float(bad):g}" if a.dtype.kind == "f" else int(bad)
         raise InputError(f"{name} indices must be in [0, {n - 1}] for {n} vertices; found {bad} in {where}:/{name}")
+    a = a.astype(np.int64)
     if (a[:, :, None] == a[:, None, :])[:, ~np.eye(k, dtype=bool)].any():
         row = int(np.flatnonzero((a[:, :, None] == a[:, None, :])[:, ~np.eye(k, dtype=bool)].any(axis=1))[0])
         raise InputError(f"{name} must not repeat a vertex within a row; row {row} is {a[row].tolist()} in {where}:/{name}")

@@ -1,5 +1,7 @@
 """Sequence.validate: what it accepts, normalises and refuses (with a one-line message)."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -59,6 +61,8 @@ def test_kind(rng, faces, edges, kind):
     (dict(faces=np.array([[0, 1, 1]])), "row 0 is [0, 1, 1] in s.h5:/faces"),
     (dict(faces=np.array([[0, 1, 2.5]])), "faces must be integer indices; got float64"),
     (dict(edges=np.array([[0, 9]])), "edges indices must be in [0, 3]"),
+    # a whole float beyond int64 (it was cast first, with a RuntimeWarning, and reported wrapped)
+    (dict(edges=np.array([[0.0, 1e308]])), "edges indices must be in [0, 3] for 4 vertices; found 1e+308 in s.h5:/edges"),
     (dict(weights=np.ones(3)), "weights must be (4,) to match positions; got (3,) in s.h5:/weights"),
     (dict(weights=np.array([1.0, -1, 1, 1])), "weights must be finite and >= 0; got min -1 in s.h5:/weights"),
     (dict(weights=np.array([1.0, np.nan, 1, 1])), "found NaN or Inf in s.h5:/weights"),
@@ -71,12 +75,14 @@ def test_kind(rng, faces, edges, kind):
     (dict(obstacles=[Obstacle("wall", np.zeros((4, 3)))]), "obstacle needs faces or edges in s.h5:/obstacles/wall"),
     (dict(obstacles=[Obstacle("wall", np.full((4, 3), np.inf), edges=np.array([[0, 1]]))]), "must be finite"),
 ], ids=["not-3d", "one-frame", "no-vertex", "strings", "index-too-big", "negative-index", "faces-2-columns",
-        "repeated-vertex", "fractional-index", "edge-index", "weights-length", "negative-weight", "nan-weight",
+        "repeated-vertex", "fractional-index", "edge-index", "huge-float-index", "weights-length", "negative-weight", "nan-weight",
         "zero-weights", "float-components", "negative-thickness", "text-thickness", "obstacle-frames",
         "obstacle-no-topology", "obstacle-inf"])
 def test_refused_with_named_dataset(rng, change, expect):
-    with pytest.raises(InputError) as err:
-        _seq(rng, **change).validate()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a refusal prints nothing but its message
+        with pytest.raises(InputError) as err:
+            _seq(rng, **change).validate()
     assert expect in str(err.value)
     assert "\n" not in str(err.value)
 
