@@ -96,9 +96,10 @@ def command(paths, thickness, frames, threads, as_json, max_pairs, mode, strict,
     path = paths[0]
     set_threads(threads)
     total = n_steps(path, frame_slice)
-    long_file = not (usd_prims or usd_obstacles) and is_long(path, "result" if is_result_file(path) else "path")
+    result = is_result_file(path)
+    long_file = not (usd_prims or usd_obstacles) and is_long(path, "result" if result else "path")
     if long_file and frame_slice is not None and not total:  # (exact for a long file: known HDF5 steps)
-        raise no_step_error(path, frame_slice, "result" if is_result_file(path) else "sequence")
+        raise no_step_error(path, frame_slice, "result" if result else "sequence")
     with Progress(total, "verify") as bar:
         if long_file:
             # frames beyond MAX_TASK_BYTES: its frame ranges one after another, as a worker would

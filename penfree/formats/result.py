@@ -286,6 +286,13 @@ def _read_deformed(ds, where, frame=None, rows=None) -> np.ndarray:
     return out
 
 
+def _per_vertex(N):
+    """Whether a per-step dataset is per vertex, ``(S, N, ...)`` (``--per-vertex`` residuals):
+    a frame window's read takes only its rows, a tables read none. ``A`` ``(S, 3, 3)`` of
+    a 3-vertex scene is not one."""
+    return lambda ds: ds.ndim >= 2 and ds.shape[1] == N and ds.size > 9 * ds.shape[0]
+
+
 def _steps_of(f, where):
     """The ``steps`` group of an open result file; FormatError when it is not one."""
     link = f.get("steps", getlink=True)
@@ -329,7 +336,7 @@ def read_result(path, require=(), window=None) -> DeformResult:
         seq = read_from_h5(f, where, window)
         seq.validate()
         # a window's read leaves the per-vertex datasets (S, N, ...) to take their rows
-        lazy = None if window is None else (lambda ds: ds.ndim >= 2 and ds.shape[1] == seq.n_vertices)
+        lazy = None if window is None else _per_vertex(seq.n_vertices)
         steps = _read_group(g, where, skip_deformed=True, lazy=lazy)
         frame = steps.get("frame")
         usable = frame is not None and np.ndim(frame) == 1 and np.asarray(frame).dtype.kind in "iu"
@@ -400,9 +407,7 @@ def read_result_tables(path, require=()) -> tuple:
         seq = read_from_h5(f, where, None if T is None or T < 2 else (0, 2))
         seq.validate()
         N = seq.n_vertices
-        # per-vertex datasets stay unread (then dropped); ``A`` and ``b`` of a 3-vertex scene are not those
-        per_vertex = (lambda ds: ds.ndim >= 2 and ds.shape[1] == N and ds.size > 9 * ds.shape[0])
-        steps = _read_group(g, where, skip_deformed=True, lazy=per_vertex)
+        steps = _read_group(g, where, skip_deformed=True, lazy=_per_vertex(N))  # those unread, then dropped
         attrs = read_attrs(f, where)
         groups = {k: _read_group(obj, where) for k, obj in f.items()
                   if isinstance(obj, h5py.Group) and k not in SEQUENCE_NAMES}

@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.trust.client_stats import client_counts, expand, resolve_dhat, rule_baseline, summarize_counts
+from ..core.trust.client_stats import (
+    client_counts, expand, replayed_steps, resolve_dhat, rule_baseline, summarize_counts,
+)
 from ..core.trust.client import RADIUS_RULES, TRUNCATIONS
-from ..errors import InputError
 
 
 def client_section(result, *, client="ipctk", truncation="both", radius="both", dhat=None, every=1,
@@ -41,10 +42,8 @@ def client_options(seq, *, client="ipctk", truncation="both", radius="both", dha
 def client_frames(frames, n_frames, every) -> np.ndarray:
     """The frames of the steps `client_counts` replays: those with a next frame among the
     `n_frames` of the recording, every `every`-th of them."""
-    if int(every) < 1:
-        raise InputError(f"--every must be >= 1; got {every}")
     frames = np.asarray(frames, dtype=np.int64)
-    return frames[frames + 1 < n_frames][::int(every)]
+    return frames[replayed_steps(frames, n_frames, every)]
 
 
 def client_steps(result, options, *, frames=None, progress=None) -> dict:

@@ -51,6 +51,14 @@ def expand(choice, options) -> tuple:
     return (choice,)
 
 
+def replayed_steps(frames, n_frames, every) -> np.ndarray:
+    """Indices of the steps `client_counts` replays: every `every`-th of the steps (of
+    frames `frames`) with a next frame among the `n_frames` of the recording."""
+    if int(every) < 1:
+        raise InputError(f"--every must be >= 1; got {every}")
+    return np.flatnonzero(np.asarray(frames, dtype=np.int64) + 1 < n_frames)[::int(every)]
+
+
 def client_counts(positions, deformed, frames, *, edges=None, faces=None, dhat, thickness=0.0,
                   truncations=TRUNCATIONS, radii=RADIUS_RULES, every=1, client="ipctk", models=None,
                   progress=None) -> dict:
@@ -78,12 +86,8 @@ def client_counts(positions, deformed, frames, *, edges=None, faces=None, dhat, 
     """
     if client == "ipctk":
         load_ipctk()
-    every = int(every)
-    if every < 1:
-        raise InputError(f"--every must be >= 1; got {every}")
     frames = np.asarray(frames, dtype=np.int64)
-    T = positions.shape[0]
-    pick = [i for i in np.flatnonzero(frames + 1 < T)][::every]
+    pick = replayed_steps(frames, positions.shape[0], every)
     out = {"frame": frames[pick].copy()}
     if models is not None:
         out["model"] = np.asarray(models)[pick].astype(str)
