@@ -77,7 +77,8 @@ def deform_row(name, truncation, steps, rounds):
     info = {}
 
     def run(shared):
-        model = ClientModel(truncation=truncation, dhat=dhat, edges=seq.edges, faces=seq.faces)
+        model = ClientModel(truncation=truncation, dhat=dhat, edges=seq.edges, faces=seq.faces,
+                            obstacles=tuple(seq.obstacles))
         out = deform_sequence(seq, model="auto", frames=(0, steps + 1), client_model=model).steps
         if model._query is not None:
             info.update(model._query.info)

@@ -5,8 +5,10 @@ truncation T (predicting for radius rule ``step``; with ``--radius own``, as
 ``--client-radius own``, for rule ``own``), and every step is replayed through
 ``ipctk.ogc.TrustRegion`` from the recorded ``x`` and from ``x_def``, under both
 radius rules (``step``: the simulator keeps the radius of ``x``; ``own``: ipctk's warm
-start recomputes it from ``x_def`` and moves isotropically within the radii). Printed:
-passes summed over the sequence, each rule against its own baseline from ``x``.
+start recomputes it from ``x_def`` and moves isotropically within the radii). The
+sample's obstacles are in the client's collision mesh, for the prediction and the
+replay alike (`penfree.core.trust.client_scene`). Printed: passes summed over the
+sequence, each rule against its own baseline from ``x``.
 
     python benchmarks/eval_client.py [--every K] [--client ipctk|own] [--truncation T] [--radius step|own]
                                      [SAMPLE.h5 ...]
@@ -39,13 +41,13 @@ def evaluate(path, every=1, client="ipctk", truncations=("isotropic", "planar"),
     rows = {}
     for tr in truncations:
         cm = ClientModel(truncation=tr, dhat=dhat, edges=seq.edges, faces=seq.faces, predictor=predictor,
-                         repeat=repeat, radius=radius)
+                         repeat=repeat, radius=radius, obstacles=tuple(seq.obstacles))
         t0 = time.perf_counter()
         out = deform_sequence(seq, model="auto", client_model=cm)
         t_fit = time.perf_counter() - t0
         counts = client_counts(seq.positions, out.steps["deformed"], out.steps["frame"], edges=seq.edges,
                                faces=seq.faces, dhat=dhat, thickness=seq.thickness, truncations=(tr,),
-                               every=every, client=client, models=out.steps["model"])
+                               every=every, client=client, models=out.steps["model"], obstacles=seq.obstacles)
         sm = summarize_counts(counts)[tr]
         moved = int(np.count_nonzero(counts["model"] != "none"))
         rows[tr] = dict(sm, moved=moved, n=len(counts["frame"]), t_fit=t_fit, dhat=dhat)
@@ -63,7 +65,7 @@ def main(argv=None):
     ap.add_argument("--no-repeat", action="store_true",
                     help="without the rigid-repeat candidate and the co-rotated target (ClientModel.repeat)")
     ap.add_argument("--radius", default="step", choices=("step", "own"),
-                    help="the radius rule auto predicts for (ClientModel.radius, deform --client-rule)")
+                    help="the radius rule auto predicts for (ClientModel.radius, deform --client-radius)")
     a = ap.parse_args(argv)
     files = a.files or sorted(glob.glob(os.path.join(ROOT, "samples", "*.h5")))
     print(f"real-client CD passes summed over each sequence ({a.client}, every {a.every} step(s)); "

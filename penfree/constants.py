@@ -185,13 +185,16 @@ SELECT_TIE_RTOL = 0.02
 #: that reaches the prediction up to rounding has r_v ~ 1e-16, which is no signal.
 SELECT_TIE_ATOL = 1e-9
 
-# --- real-client replay (penfree/core/client.py) ------------------------------
+# --- real-client replay (penfree/core/trust/client.py) ------------------------------
 #: Iterations after the warm start before a replay stops (each is one filtered
 #: step of the solver toward x_next; a converging replay needs a handful).
 DEFAULT_CLIENT_MAX_ITER = 32
 #: A vertex within this fraction of the step's largest recorded move from x_next
 #: has arrived (the iterations land exactly on x_next when not truncated).
 DEFAULT_CLIENT_TOL_REL = 1e-6
+#: The client updates its trust region (a CD pass) when more than this fraction of the
+#: mesh's vertices were truncated (ipctk.ogc.TrustRegion's ``update_threshold``).
+CLIENT_UPDATE_THRESHOLD = 0.01
 #: `auto` under a client model (penfree/core/client_select.py): candidates replayed
 #: per step besides doing nothing, best static prediction first (each replay costs a
 #: few bound computations).

@@ -111,6 +111,7 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
         if model != "auto":
             raise InputError(f"--client-model needs --model auto; got --model {model}")
         cm = ClientModel(truncation=client_model, radius=client_radius or "step", edges=seq.edges, faces=seq.faces,
+                         obstacles=tuple(seq.obstacles),
                          dhat=resolve_dhat(dhat, seq.contact_radius if contact_radius is None else contact_radius,
                                            seq.thickness if thickness is None else thickness))
 

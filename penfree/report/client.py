@@ -1,7 +1,8 @@
 """The real-client section of ``penfree report`` (``--client ipctk``).
 
 report.json gains, per file, ``client``: ``options`` (``client``, ``truncations``,
-``radius_rules``, ``dhat``, ``every``, ``thickness``), ``summary`` (per truncation:
+``radius_rules``, ``dhat``, ``every``, ``thickness``, ``obstacles``: the names of the
+colliders in the client's collision mesh), ``summary`` (per truncation:
 ``baseline`` (rule step) and ``baseline_own`` (rule own), ``step``/``own`` passes
 summed over the replayed steps, their ``..._change`` fractions against their own
 rule's baseline and the iteration totals; `client_stats.summarize_counts`)
@@ -36,7 +37,8 @@ def client_options(seq, *, client="ipctk", truncation="both", radius="both", dha
     radii = expand(radius, RADIUS_RULES)
     dhat = resolve_dhat(dhat, seq.contact_radius, seq.thickness)
     return {"client": client, "truncations": list(truncations), "radius_rules": list(radii),
-            "dhat": dhat, "every": int(every), "thickness": float(seq.thickness)}
+            "dhat": dhat, "every": int(every), "thickness": float(seq.thickness),
+            "obstacles": [ob.name for ob in seq.obstacles]}
 
 
 def client_frames(frames, n_frames, every) -> np.ndarray:
@@ -60,7 +62,7 @@ def client_steps(result, options, *, frames=None, progress=None) -> dict:
     return client_counts(seq.positions, deformed, fr, edges=seq.edges, faces=seq.faces, dhat=options["dhat"],
                          thickness=seq.thickness, truncations=tuple(options["truncations"]),
                          radii=tuple(options["radius_rules"]), every=every, client=options["client"],
-                         models=models, progress=progress)
+                         models=models, progress=progress, obstacles=seq.obstacles)
 
 
 def section_of(options, counts) -> dict:
@@ -109,7 +111,8 @@ def client_markdown(section) -> str:
              "simulator keeps the radius computed at x (the integration contract) and moves toward x_pred by the "
              "truncation's filter; rule `own`: ipctk's warm start (`warm_start_time_step`) recomputes it from "
              "x_def and moves isotropically within the radii. Each rule is compared with its own baseline "
-             "(from x).\n",
+             "(from x)." + (f" Obstacles in the client's collision mesh: {', '.join(o['obstacles'])}."
+                            if o.get("obstacles") else "") + "\n",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines) + "\n"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import sys
@@ -124,3 +125,48 @@ def test_report_client_ipctk_table_and_plot(two_rods, tmp_path):
     assert md.index("R" + line[1:]) < md.index("### Summary: baseline vs deformed")
     if doc["plots"]["status"] == "written":
         assert os.path.exists(out / "d_client_passes.png")
+
+
+def test_deform_and_report_client_replay_the_obstacles(tmp_path):
+    """cloth_drape_box (a box and the ground): ``deform --client-model`` predicts with the
+    obstacles in the client's mesh (the library's choice with them, which differs from
+    the choice without them on frame 12), and ``report --client`` replays with them and
+    names them in its options."""
+    from pathlib import Path
+
+    from penfree import read_sequence
+    from penfree.core.pipeline.client_select import ClientModel
+    from penfree.core.pipeline.deform import deform_sequence
+    from penfree.core.trust.client_stats import resolve_dhat
+
+    sample = Path(__file__).resolve().parents[2] / "samples" / "cloth_drape_box.h5"
+    seq = read_sequence(str(sample))
+    dhat = resolve_dhat(None, seq.contact_radius, seq.thickness)
+    out = tmp_path / "d.h5"
+    r = CliRunner().invoke(main, ["deform", str(sample), "-o", str(out), "--client-model", "isotropic",
+                                  "--frames", "12:13"])
+    assert r.exit_code == 0, r.output
+
+    def library(obstacles):
+        cm = ClientModel(truncation="isotropic", dhat=dhat, edges=seq.edges, faces=seq.faces, obstacles=obstacles)
+        return deform_sequence(seq, model="auto", client_model=cm, frames=(12, 13)).steps
+
+    with_ob, without = library(tuple(seq.obstacles)), library(())
+    assert with_ob["model"][0] != without["model"][0]
+    with h5py.File(out, "r") as f:
+        np.testing.assert_array_equal(f["steps/deformed"][()], with_ob["deformed"])
+    if importlib.util.find_spec("ipctk") is None:
+        pytest.skip("ipctk (penfree[ogc]) not installed; make test installs it")
+    rep = tmp_path / "rep"
+    r = CliRunner().invoke(main, ["report", str(out), "-o", str(rep), "--client", "ipctk", "--truncation", "isotropic",
+                                  "--radius", "step", "--no-ladder", "--no-plots"])
+    assert r.exit_code == 0, r.output
+    section = json.loads((rep / "report.json").read_text())["files"][0]["client"]
+    assert section["options"]["obstacles"] == ["box", "ground"]
+    assert "Obstacles in the client's collision mesh: box, ground." in (rep / "report.md").read_text()
+    from penfree.core.trust.client import replay_step
+
+    P = seq.positions.astype(float)
+    want = replay_step(with_ob["deformed"][0], P[12], 2 * P[12] - P[11], P[13], faces=seq.faces, dhat=dhat,
+                       thickness=seq.thickness, client="ipctk", obstacles=seq.obstacles, frame=12)["passes"]
+    assert section["steps"]["passes_isotropic_step_deformed"] == [want]

@@ -70,6 +70,8 @@ class ClientModel:
     repeat : bool
         Add the ``rigid-repeat`` candidate and predict toward the co-rotated target
         (default); False keeps the candidates and target of the static `auto`.
+    obstacles : tuple of Obstacle
+        The sequence's colliders, in the client's collision mesh (`client_scene`).
     """
 
     truncation: str
@@ -80,6 +82,7 @@ class ClientModel:
     shortlist: int = K.CLIENT_SELECT_SHORTLIST
     predictor: str = "own"
     repeat: bool = True
+    obstacles: tuple = ()
     _query: object = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -98,7 +101,7 @@ class ClientModel:
         if self.predictor != "own":
             return None
         if self._query is None or self._query.n != x.shape[0]:
-            self._query = ClientQuery(x, self.edges, self.faces)
+            self._query = ClientQuery(x, self.edges, self.faces, self.obstacles)
         return self._query
 
 
@@ -162,8 +165,11 @@ def _replay_order(cands, shortlist):
     return order + [i for i in range(1, len(cands)) if cands[i].name in ALWAYS_REPLAYED]
 
 
-def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.inf) -> int:
+def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.inf, frame=None) -> int:
     """Index of the candidate with the fewest predicted client passes (module doc).
+
+    `frame`: the step's frame, where the model's obstacles are taken (needed with
+    mesh obstacles).
 
     Fills ``predicted["client_passes"]`` (toward ``y_hat``) and
     ``predicted["client_passes_half"]`` (toward the half-way point) of the replayed
@@ -183,7 +189,7 @@ def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.
     def replay(x_def, y, max_iter):
         return replay_step(x_def, x64, x_pred, y, edges=model.edges, faces=model.faces, dhat=model.dhat,
                            thickness=thickness, truncation=model.truncation, radius=model.radius, client=model.predictor,
-                           max_iter=max_iter, query=query)["passes"]
+                           max_iter=max_iter, query=query, obstacles=model.obstacles, frame=frame)["passes"]
 
     def start(cand):
         if cand.D.any() or cand.u.any():

@@ -88,7 +88,8 @@ def predeform(x_prev, x, *, edges=None, faces=None, contact_radius=0.0, thicknes
     obstacles : list of penfree.Obstacle, optional
         Half-spaces, and mesh obstacles at the current frame (static ``(M, 3)``
         positions). The applied map keeps every vertex path at least `thickness` from
-        them, exactly as `penfree deform` does (half-spaces exactly, meshes by CCD).
+        them, exactly as `penfree deform` does (half-spaces exactly, meshes by CCD),
+        and they are in the predicted client's collision mesh (`client_scene`).
     bounds : (N,) float, optional
         The per-vertex OGC bounds ``0.45 (d_v - thickness)`` the simulator already
         has at `x` (its last CD pass, with a query radius at least the step's): they
@@ -154,7 +155,8 @@ def predeform(x_prev, x, *, edges=None, faces=None, contact_radius=0.0, thicknes
             raise InputError(f"bounds must be ({x64.shape[0]},) real, finite and >= 0; got {b.shape} {b.dtype}")
         b = b.astype(np.float64)
         d_start = b / K.DEFAULT_GAMMA + seq.thickness
-    cm = ClientModel(truncation=truncation, dhat=dhat, edges=seq.edges, faces=seq.faces, radius=radius_rule)
+    cm = ClientModel(truncation=truncation, dhat=dhat, edges=seq.edges, faces=seq.faces, radius=radius_rule,
+                     obstacles=tuple(seq.obstacles))
     strategy = Auto(seq, "auto", seq.thickness, 1, client_model=cm, d_start=d_start)
     _, o = run_step(seq, 1, strategy, required_margin(seq.thickness), seq.thickness, seq.weights,
                     seq.contact_radius)

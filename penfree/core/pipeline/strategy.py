@@ -164,7 +164,8 @@ class Auto:
         if self.client_model is not None:  # the client's replayed passes pick the first; the rest as ranked
             from .client_select import choose_by_client
 
-            best = choose_by_client(cands, x_prev, x, m.c, d_start, self.client_model, self.thickness, step.r_q)
+            best = choose_by_client(cands, x_prev, x, m.c, d_start, self.client_model, self.thickness, step.r_q,
+                                    frame=step.s)
             order = [best] + [k for k in order if k != best]
         for k in order:
             o = from_step_result(candidate_result(x_prev, x, m, cands[k], t0))

@@ -23,6 +23,10 @@ from a start state ``x_s`` (the recorded ``x`` = baseline, or ``x_def``):
    more iteration would repeat the same filter without a CD pass); or after
    ``max_iter`` iterations.
 4. **Count.** CD passes (every ``update``, the first included) and iterations.
+
+With the sequence's obstacles (``obstacles=``), the client's collision mesh holds them
+after the scene's vertices, as a simulator's does (`client_scene`): their distances
+shrink the trust regions of the vertices near them.
 """
 
 from __future__ import annotations
@@ -32,11 +36,12 @@ import numpy as np
 from ... import constants as K
 from ...errors import InputError
 from .planar import (
-    KIND_EDGE_EDGE, KIND_VERTEX_FACE, RELAXED_RADIUS_SCALING, ball_ratio, candidate_stencils, isotropic_filter,
+    KIND_EDGE_EDGE, KIND_VERTEX_FACE, RELAXED_RADIUS_SCALING, candidate_stencils, isotropic_filter,
     planar_filter,
 )
 from ..contact.proximity import SeparationQuery
 from .bounds import scene_arrays
+from .client_scene import ClientScene
 
 TRUNCATIONS = ("isotropic", "planar")
 RADIUS_RULES = ("own", "step")
@@ -62,15 +67,29 @@ def inflation_radius(x, x_pred, dhat) -> float:
     return max(2.0 * float(dhat), float(d.max()) if d.size else 0.0)
 
 
+def warm_start_move(x, x_pred, radii) -> tuple:
+    """``warm_start_time_step``'s move (ipctk's ``trust_region.cpp``): each vertex to
+    `x_pred` if within its radius, else toward it by its radius (a vertex of radius 0
+    stays). Returns the moved ``(N, 3)`` positions and the count of those held back."""
+    x_pred = np.asarray(x_pred, dtype=np.float64)
+    dx = x_pred - x
+    norm = np.linalg.norm(dx, axis=1)
+    held = ~(norm <= radii)
+    ratio = np.divide(radii, norm, out=np.ones_like(norm), where=held)
+    return np.where(held[:, None], x + ratio[:, None] * dx, x_pred), int(np.count_nonzero(held))
+
+
 class IpctkClient:
     """``ipctk.ogc.TrustRegion`` behind the small interface the replay drives."""
 
-    def __init__(self, V, E, F, dhat, thickness, truncation):
+    def __init__(self, V, E, F, dhat, thickness, truncation, n_dynamic=None):
         ipctk = load_ipctk()
         self._ipctk = ipctk
         E_ = np.asfortranarray(E, dtype=np.int32).reshape(-1, 2)
         F_ = np.asfortranarray(F, dtype=np.int32).reshape(-1, 3)
         self.mesh = ipctk.CollisionMesh(np.asfortranarray(V, dtype=np.float64), E_, F_)
+        if n_dynamic is not None and n_dynamic < np.asarray(V).shape[0]:  # obstacles follow: no pairs among them
+            self.mesh.can_collide = ipctk.make_static_obstacle_filter(int(n_dynamic))
         self.tr = ipctk.ogc.TrustRegion(float(dhat))
         self.collisions = ipctk.NormalCollisions()
         self.dhat, self.thickness, self.truncation = float(dhat), float(thickness), truncation
@@ -80,18 +99,30 @@ class IpctkClient:
 
     def update(self, x):
         self.tr.update(self.mesh, np.asfortranarray(x), self.collisions, self.thickness)
+        r = np.asarray(self.tr.trust_region_radii)
+        if (r < 0).any():
+            # ipctk 1.6.1 leaves a vertex with a pair within the thickness (a crossing,
+            # or resting closer than the thickness) a negative radius, 0.45 (d - thickness),
+            # which moves it backwards; the OGC bound is 0 there (SPEC section 7), as
+            # the own client has it.
+            self.tr.trust_region_radii = np.maximum(r, 0.0)
         self.tr.should_update_trust_region = False
 
     def warm_start(self, x, x_pred):
-        """ipctk's own warm start; returns the moved x and its CD passes (1 or 2)."""
-        xs = np.array(x, dtype=np.float64, order="F")
-        x0 = xs.copy()
-        self.tr.warm_start_time_step(self.mesh, xs, np.asfortranarray(x_pred, dtype=np.float64), self.collisions,
-                                     self.dhat, self.thickness)
-        # The second, conditional update re-centres the regions at the moved x.
-        second = not np.array_equal(np.asarray(self.tr.trust_region_centers), x0)
-        self.tr.should_update_trust_region = False
-        return np.ascontiguousarray(xs), 1 + int(second)
+        """ipctk's ``warm_start_time_step`` (its ``trust_region.cpp``) step by step, so that
+        its regions are those of `update`: the radius ``max(2 dhat, max_v |x_pred - x|)``,
+        one CD pass, every vertex moved toward `x_pred` within its radius, a second pass
+        when more than 1% were truncated. Returns the moved x and its CD passes (1 or 2)."""
+        x = np.array(x, dtype=np.float64)
+        norm = np.linalg.norm(np.asarray(x_pred, dtype=np.float64) - x, axis=1)
+        self.set_radius(max(2.0 * self.dhat, float(norm.max(initial=0.0))))
+        self.update(x)
+        x_new, n_held = warm_start_move(x, x_pred, np.asarray(self.tr.trust_region_radii, dtype=np.float64))
+        passes = 1
+        if n_held > K.CLIENT_UPDATE_THRESHOLD * x.shape[0]:
+            self.update(x_new)
+            passes += 1
+        return x_new, passes
 
     def filter(self, x, dx):
         d = np.array(dx, dtype=np.float64, order="F")
@@ -114,6 +145,9 @@ class ClientQuery:
     edges, faces : int arrays or None
         The topology, as `replay_step` takes it; `replay_step` accepts this query only
         with these very objects.
+    obstacles : sequence of `penfree.sequence.Obstacle`, optional
+        The scene's obstacles (`client_scene.ClientScene`); `replay_step` accepts this
+        query only with the same obstacle objects.
 
     Notes
     -----
@@ -137,11 +171,18 @@ class ClientQuery:
     ([0.51, 0.51, 0.51, 0.51], True, {'queries': 1, 'memo_hits': 1})
     """
 
-    def __init__(self, V, edges, faces):
-        _, self.E, self.F = scene_arrays(V, edges, faces)
+    def __init__(self, V, edges, faces, obstacles=()):
         self.n = np.asarray(V).shape[0]
-        self.edges, self.faces = edges, faces
-        self.query = SeparationQuery(self.E, self.F)  # each pass at the reach of the last
+        self.edges, self.faces, self.obstacles = edges, faces, tuple(obstacles or ())
+        if self.obstacles:
+            scene_arrays(V, edges, faces)  # the scene's own topology validated against its vertices
+            self.scene = ClientScene(self.n, edges, faces, self.obstacles)
+            self.E, self.F = self.scene.E, self.scene.F
+            self.query = SeparationQuery(self.scene.E_scene, self.scene.F_scene)  # + the scene's cross terms
+        else:
+            _, self.E, self.F = scene_arrays(V, edges, faces)
+            self.scene = None
+            self.query = SeparationQuery(self.E, self.F)  # each pass at the reach of the last
         self._memo = []  # [x's bits, {radius: separations}, {radius: (stencils, kinds)}], newest last
         self.info = {"queries": 0, "memo_hits": 0}
 
@@ -159,20 +200,32 @@ class ClientQuery:
 
     def separations(self, x, R, start=False):
         """(N,) float64 separations at `x` (C-contiguous float64) capped at `R`;
-        `start`: a replay's start state, kept in the memo."""
+        `start`: a replay's start state, kept in the memo. With obstacles `x` holds
+        their vertices too, and so does the result."""
         e = self._entry(x, start)
         if R in e[1]:
             self.info["memo_hits"] += 1
         else:
-            e[1][R] = self.query(x, R)
+            e[1][R] = self._separations(x, R)
             self.info["queries"] += 1
         return e[1][R]
+
+    def _separations(self, x, R):
+        if self.scene is None:
+            return self.query(x, R)
+        d = np.full(x.shape[0], float(R))
+        d[:self.n] = self.query(np.ascontiguousarray(x[:self.n]), R)
+        return np.minimum(d, self.scene.cross_separations(x, R))
 
     def stencils(self, x, radius, start=False):
         """`planar.candidate_stencils` of `x` within `radius` (`start` as in `separations`)."""
         e = self._entry(x, start)
         if radius not in e[2]:
-            e[2][radius] = candidate_stencils(x, self.E, self.F, radius)
+            st, kinds = candidate_stencils(x, self.E, self.F, radius)
+            if self.scene is not None:
+                keep = self.scene.scene_pairs(st)
+                st, kinds = np.ascontiguousarray(st[keep]), np.ascontiguousarray(kinds[keep])
+            e[2][radius] = st, kinds
         return e[2][radius]
 
 
@@ -209,11 +262,9 @@ class OwnClient:
         x = np.array(x, dtype=np.float64)
         self.set_radius(inflation_radius(x, x_pred, self.dhat))
         self.update(x)
-        beta = ball_ratio(x, x_pred - x, x, self.radii)
-        trunc = beta < 1.0
-        x_new = np.where(trunc[:, None], x + np.minimum(beta, 1.0)[:, None] * (x_pred - x), x_pred)
+        x_new, n_held = warm_start_move(x, x_pred, self.radii)
         passes = 1
-        if np.count_nonzero(trunc) > 0.01 * self.n:
+        if n_held > K.CLIENT_UPDATE_THRESHOLD * self.n:
             self.update(x_new)
             passes += 1
         return x_new, passes
@@ -223,12 +274,13 @@ class OwnClient:
             out, n_trunc = planar_filter(x, dx, self.centers, self.R, self.stencils, self.kinds)
         else:
             out, n_trunc = isotropic_filter(x, dx, self.centers, self.radii)
-        return out, n_trunc > 0.01 * self.n
+        return out, n_trunc > K.CLIENT_UPDATE_THRESHOLD * self.n
 
 
-def make_client(client, V, E, F, dhat, thickness, truncation, query=None):
+def make_client(client, V, E, F, dhat, thickness, truncation, query=None, n_dynamic=None):
     """An `IpctkClient` or `OwnClient` for one replay (`query`: the own client's shared
-    `ClientQuery`, if any)."""
+    `ClientQuery`, if any, which knows the obstacles; `n_dynamic`: ipctk's count of
+    scene vertices, the obstacles' following)."""
     if client not in CLIENTS:
         raise InputError(f"client must be one of {CLIENTS}; got {client!r}")
     if truncation not in TRUNCATIONS:
@@ -236,12 +288,13 @@ def make_client(client, V, E, F, dhat, thickness, truncation, query=None):
     if not (np.isfinite(dhat) and dhat > 0):
         raise InputError(f"dhat must be finite and > 0 (give --dhat or a contact_radius); got {dhat}")
     if client == "ipctk":
-        return IpctkClient(V, E, F, dhat, thickness, truncation)
+        return IpctkClient(V, E, F, dhat, thickness, truncation, n_dynamic)
     return OwnClient(V, E, F, dhat, thickness, truncation, query)
 
 
 def replay_step(x_s, x, x_pred, x_next, *, edges=None, faces=None, dhat, thickness=0.0, truncation="isotropic",
-                radius="step", client="ipctk", tol=None, max_iter=K.DEFAULT_CLIENT_MAX_ITER, query=None) -> dict:
+                radius="step", client="ipctk", tol=None, max_iter=K.DEFAULT_CLIENT_MAX_ITER, query=None,
+                obstacles=(), frame=None) -> dict:
     """CD passes and iterations of one step replayed through the client (module doc).
 
     Parameters
@@ -271,6 +324,12 @@ def replay_step(x_s, x, x_pred, x_next, *, edges=None, faces=None, dhat, thickne
         The own client's queries, shared by the replays of one scene (built from these
         very `edges` and `faces` objects; ipctk runs its own); the counts are the same
         as without it.
+    obstacles : sequence of `penfree.sequence.Obstacle`, optional
+        Colliders in the client's collision mesh (`client_scene.ClientScene`: mesh
+        obstacles at `frame` in the start states and at ``frame + 1`` in the targets,
+        a half-space as one large triangle under the scene).
+    frame : int
+        The step's frame ``s`` (needed with mesh obstacles).
 
     Returns
     -------
@@ -296,22 +355,38 @@ def replay_step(x_s, x, x_pred, x_next, *, edges=None, faces=None, dhat, thickne
     for name, a in (("x", x), ("x_pred", x_pred), ("x_next", x_next)):
         if a.shape != x_s.shape or a.ndim != 2 or a.shape[1] != 3:
             raise InputError(f"{name} must be (N, 3) like x_s {x_s.shape}; got {a.shape}")
+    obstacles = tuple(obstacles or ())
+    if frame is None and any(not ob.is_half_space for ob in obstacles):
+        raise InputError("replay_step: mesh obstacles need the step's frame")
+    n = x.shape[0]
     if client != "own":
         query = None  # ipctk runs its own queries
+    elif query is None and obstacles:  # the own client leaves obstacle pairs out through its query
+        query = ClientQuery(x, edges, faces, obstacles)
+    if tol is None:
+        span = float(np.linalg.norm(x_next - x, axis=1).max()) if n else 0.0
+        tol = max(1e-12, K.DEFAULT_CLIENT_TOL_REL * span)
     if query is not None:
-        if query.edges is not edges or query.faces is not faces or query.n != x.shape[0]:
-            raise InputError("replay_step: the query was built for another scene (pass the edges and faces "
-                             "objects it was built from, and positions of its N)")
-        E, F = query.E, query.F
+        if (query.edges is not edges or query.faces is not faces or query.n != n
+                or len(query.obstacles) != len(obstacles)
+                or any(a is not b for a, b in zip(query.obstacles, obstacles))):
+            raise InputError("replay_step: the query was built for another scene (pass the edges, faces and "
+                             "obstacle objects it was built from, and positions of its N)")
+        E, F, scene = query.E, query.F, query.scene
+    elif obstacles:  # ipctk
+        scene_arrays(x, edges, faces)  # the scene's own topology validated against its vertices
+        scene = ClientScene(n, edges, faces, obstacles)
+        E, F = scene.E, scene.F
     else:
         E = np.zeros((0, 2), np.int64) if edges is None else np.asarray(edges)
         F = np.zeros((0, 3), np.int64) if faces is None else np.asarray(faces)
         if F.size:  # a triangle scene: the client's edges are the face edges
             _, E, F = scene_arrays(x, E, F)
-    cl = make_client(client, x, E, F, dhat, thickness, truncation, query)
-    if tol is None:
-        span = float(np.linalg.norm(x_next - x, axis=1).max()) if x.shape[0] else 0.0
-        tol = max(1e-12, K.DEFAULT_CLIENT_TOL_REL * span)
+        scene = None
+    if scene is not None:  # the largest radius the client can query, for a ground's triangle
+        reach = max(inflation_radius(x, x_pred, dhat), inflation_radius(x_s, x_pred, dhat)) + float(thickness)
+        x_s, x, x_pred, x_next = scene.states(frame, [x_s, x, x_pred, x_next], reach, ref=1)
+    cl = make_client(client, x, E, F, dhat, thickness, truncation, query, n_dynamic=n)
     if radius == "own":
         xc, passes = cl.warm_start(x_s, x_pred)
     else:
@@ -335,7 +410,7 @@ def replay_step(x_s, x, x_pred, x_next, *, edges=None, faces=None, dhat, thickne
             break
         cl.update(xc)
         passes += 1
-    left = int(np.count_nonzero(np.linalg.norm(x_next - xc, axis=1) > tol))
+    left = int(np.count_nonzero(np.linalg.norm(x_next[:n] - xc[:n], axis=1) > tol))
     return {"passes": passes, "iterations": iterations, "converged": left == 0, "n_truncated": left}
 
 

@@ -61,7 +61,7 @@ def replayed_steps(frames, n_frames, every) -> np.ndarray:
 
 def client_counts(positions, deformed, frames, *, edges=None, faces=None, dhat, thickness=0.0,
                   truncations=TRUNCATIONS, radii=RADIUS_RULES, every=1, client="ipctk", models=None,
-                  progress=None) -> dict:
+                  progress=None, obstacles=()) -> dict:
     """Replay every `every`-th step with a next frame through the client (module doc).
 
     Parameters
@@ -79,6 +79,9 @@ def client_counts(positions, deformed, frames, *, edges=None, faces=None, dhat, 
         The applied model per step (copied into the output).
     progress : callable, optional
         Called once per replayed step.
+    obstacles : sequence of Obstacle, optional
+        The recording's colliders, in the client's collision mesh (`client.replay_step`);
+        `positions`' frame numbers index their frames.
 
     Returns
     -------
@@ -99,7 +102,7 @@ def client_counts(positions, deformed, frames, *, edges=None, faces=None, dhat, 
             for rule in radii:
                 out[f"{key}_{tr}_{rule}_deformed"] = np.zeros(len(pick), np.int64)
     # the own client's queries shared by all replays (both truncations start from the same states)
-    query = ClientQuery(positions[0], edges, faces) if client == "own" and len(pick) else None
+    query = ClientQuery(positions[0], edges, faces, obstacles) if client == "own" and len(pick) else None
     for k, i in enumerate(pick):
         s = frames[i]
         x = np.asarray(positions[s], dtype=np.float64)
@@ -109,7 +112,7 @@ def client_counts(positions, deformed, frames, *, edges=None, faces=None, dhat, 
         same = np.array_equal(x_def, x)
         for tr in truncations:
             kw = dict(edges=edges, faces=faces, dhat=dhat, thickness=thickness, truncation=tr, client=client,
-                      query=query)
+                      query=query, obstacles=obstacles, frame=int(s))
             base = {"step": replay_step(x, x, x_pred, x_next, radius="step", **kw)}
             if "own" in radii:  # the same warm-start move as rule step's under isotropic truncation
                 base["own"] = base["step"] if tr == "isotropic" else replay_step(x, x, x_pred, x_next, radius="own",

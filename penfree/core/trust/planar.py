@@ -325,7 +325,10 @@ def ball_ratio(x, dx, centers, radii):
     Returns
     -------
     (N,) float64
-        1 where ``x + dx`` is inside the ball (or ``dx = 0``).
+        1 where ``x + dx`` is inside the ball (or ``dx = 0``); NaN for a vertex at the
+        centre of a ball of radius 0 (a pair within the thickness, e.g. a crossing),
+        where ipctk 1.6.1's formula divides 0 by 0: its ``beta < 1`` test then lets the
+        vertex move unhindered, and so does `isotropic_filter`.
     """
     a = np.einsum("ij,ij->i", dx, dx)
     rel = x - centers

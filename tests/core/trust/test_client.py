@@ -186,3 +186,35 @@ def test_bad_arguments():
         replay_step(X, X, X, X, edges=EDGES, dhat=1.0, radius="mine", client="own")
     with pytest.raises(InputError, match="dhat"):
         resolve_dhat(None, 0.0, 0.0)
+
+
+@pytest.mark.skipif(not HAVE_IPCTK, reason="ipctk (penfree[ogc]) not installed; make test installs it")
+def test_ipctk_client_warm_start_is_ipctks(sample_sequence):
+    """The replay runs ipctk's ``warm_start_time_step`` step by step (so that a negative
+    radius can be clamped); where no radius is negative it gives the native call's
+    passes, and its positions and trust-region centres up to an ulp (Eigen's row norms
+    round differently from numpy's in the last bit)."""
+    import ipctk
+
+    from penfree.core.trust.client import make_client
+
+    seq = sample_sequence
+    P = seq.positions
+    dhat = resolve_dhat(None, seq.contact_radius, seq.thickness)
+    _, E, F = scene_arrays(P[0], seq.edges, seq.faces)
+    n_second = 0
+    for s in (2, 5, 9):
+        x, x_pred = P[s], 2 * P[s] - P[s - 1]
+        cl = make_client("ipctk", x, E, F, dhat, seq.thickness, "isotropic")
+        got, passes = cl.warm_start(x, x_pred)
+        tr = ipctk.ogc.TrustRegion(dhat)
+        xs = np.array(x, dtype=np.float64, order="F")
+        tr.warm_start_time_step(cl.mesh, xs, np.asfortranarray(x_pred), ipctk.NormalCollisions(), dhat,
+                                seq.thickness)
+        assert (np.asarray(tr.trust_region_radii) >= 0).all()
+        np.testing.assert_allclose(got, xs, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(np.asarray(cl.tr.trust_region_centers), np.asarray(tr.trust_region_centers),
+                                   rtol=0, atol=1e-15)
+        assert passes == 1 + int(not np.array_equal(np.asarray(tr.trust_region_centers), x))
+        n_second += passes == 2
+    assert n_second > 0  # the conditional second pass is exercised
