@@ -98,31 +98,46 @@ class IpctkClient:
         self.tr.trust_region_inflation_radius = float(R)
 
     def update(self, x):
+        """One CD pass at `x`; True when a negative radius was clamped."""
         self.tr.update(self.mesh, np.asfortranarray(x), self.collisions, self.thickness)
-        r = np.asarray(self.tr.trust_region_radii)
-        if (r < 0).any():
-            # ipctk 1.6.1 leaves a vertex with a pair within the thickness (a crossing,
-            # or resting closer than the thickness) a negative radius, 0.45 (d - thickness),
-            # which moves it backwards; the OGC bound is 0 there (SPEC section 7), as
-            # the own client has it.
-            self.tr.trust_region_radii = np.maximum(r, 0.0)
         self.tr.should_update_trust_region = False
+        r = np.asarray(self.tr.trust_region_radii)
+        if not (r < 0).any():
+            return False
+        # ipctk 1.6.1 leaves a vertex with a pair within the thickness (a crossing, or
+        # resting closer than the thickness) a negative radius, 0.45 (d - thickness),
+        # which its warm start follows backwards; the OGC bound is 0 there (SPEC
+        # section 7), as the own client has it.
+        self.tr.trust_region_radii = np.maximum(r, 0.0)
+        return True
 
     def warm_start(self, x, x_pred):
-        """ipctk's ``warm_start_time_step`` (its ``trust_region.cpp``) step by step, so that
-        its regions are those of `update`: the radius ``max(2 dhat, max_v |x_pred - x|)``,
+        """ipctk's ``warm_start_time_step``: the radius ``max(2 dhat, max_v |x_pred - x|)``,
         one CD pass, every vertex moved toward `x_pred` within its radius, a second pass
-        when more than 1% were truncated. Returns the moved x and its CD passes (1 or 2)."""
+        when more than 1% were truncated. Returns the moved x and its CD passes (1 or 2).
+
+        The native call, unless a radius at `x` is negative: then its steps are run
+        here (`warm_start_move`) on the clamped radii. (Only the native call gives its
+        positions bit for bit: Eigen rounds the moves differently in the last bit, and
+        the planar filter's counts can follow such bits.) The check costs one more
+        neighbourhood query, not a counted pass."""
         x = np.array(x, dtype=np.float64)
-        norm = np.linalg.norm(np.asarray(x_pred, dtype=np.float64) - x, axis=1)
-        self.set_radius(max(2.0 * self.dhat, float(norm.max(initial=0.0))))
-        self.update(x)
-        x_new, n_held = warm_start_move(x, x_pred, np.asarray(self.tr.trust_region_radii, dtype=np.float64))
-        passes = 1
-        if n_held > K.CLIENT_UPDATE_THRESHOLD * x.shape[0]:
-            self.update(x_new)
-            passes += 1
-        return x_new, passes
+        x_pred = np.asarray(x_pred, dtype=np.float64)
+        self.set_radius(inflation_radius(x, x_pred, self.dhat))
+        if self.update(x):
+            x_new, n_held = warm_start_move(x, x_pred, np.asarray(self.tr.trust_region_radii, dtype=np.float64))
+            passes = 1
+            if n_held > K.CLIENT_UPDATE_THRESHOLD * x.shape[0]:
+                self.update(x_new)
+                passes += 1
+            return x_new, passes
+        xs = np.array(x, dtype=np.float64, order="F")
+        self.tr.warm_start_time_step(self.mesh, xs, np.asfortranarray(x_pred), self.collisions, self.dhat,
+                                     self.thickness)
+        # The second, conditional update re-centres the regions at the moved x.
+        second = not np.array_equal(np.asarray(self.tr.trust_region_centers), x)
+        self.tr.should_update_trust_region = False
+        return np.ascontiguousarray(xs), 1 + int(second)
 
     def filter(self, x, dx):
         d = np.array(dx, dtype=np.float64, order="F")

@@ -237,8 +237,11 @@ def test_crossings_give_ipctk_no_negative_radii(crossed_cables):
     assert (raw < 0).any()
     cl = make_client("ipctk", X, q.E, q.F, dhat, seq.thickness, "isotropic", n_dynamic=len(x))
     cl.set_radius(2 * dhat)
-    cl.update(X)
+    assert cl.update(X)  # clamped
     np.testing.assert_array_equal(np.asarray(cl.tr.trust_region_radii), np.maximum(raw, 0.0))
+    moved, passes = cl.warm_start(X, X + [1e-4, 0.0, 0.0])
+    assert np.isfinite(moved).all() and passes == 2
+    np.testing.assert_array_equal(moved[raw[:len(X)] <= 0], X[raw[:len(X)] <= 0])  # radius 0: held still
     own = make_client("own", X, q.E, q.F, dhat, seq.thickness, "isotropic", q)
     own.set_radius(2 * dhat)
     own.update(X)
