@@ -679,8 +679,9 @@ def test_report_in_process_ranges_equal_the_whole_report(tmp_path, monkeypatch, 
     read = [w for name, w in windows if name == "positions"]
     assert read and None not in read and len(read) >= 3, read
     assert json_safe(got) == json_safe(want)
-    if what == "own-client":
+    if what == "own-client":  # the rising plate is in the client's mesh, at each range's own frames
         assert got["client"]["steps"]["frame"] == list(range(1, 15, 2))
+        assert got["client"]["options"]["obstacles"] == ["plate"]
     if what == "per-component-unverifiable":
         assert "is not finite" in got["certificate"]["path_check_error"]
         assert got["certificate"]["n_path_failed"] == got["scene"]["n_steps"]
