@@ -190,8 +190,7 @@ class ClientQuery:
         self.n = np.asarray(V).shape[0]
         self.edges, self.faces, self.obstacles = edges, faces, tuple(obstacles or ())
         if self.obstacles:
-            scene_arrays(V, edges, faces)  # the scene's own topology validated against its vertices
-            self.scene = ClientScene(self.n, edges, faces, self.obstacles)
+            self.scene = ClientScene(V, edges, faces, self.obstacles)
             self.E, self.F = self.scene.E, self.scene.F
             self.query = SeparationQuery(self.scene.E_scene, self.scene.F_scene)  # + the scene's cross terms
         else:
@@ -389,8 +388,7 @@ def replay_step(x_s, x, x_pred, x_next, *, edges=None, faces=None, dhat, thickne
                              "obstacle objects it was built from, and positions of its N)")
         E, F, scene = query.E, query.F, query.scene
     elif obstacles:  # ipctk
-        scene_arrays(x, edges, faces)  # the scene's own topology validated against its vertices
-        scene = ClientScene(n, edges, faces, obstacles)
+        scene = ClientScene(x, edges, faces, obstacles)
         E, F = scene.E, scene.F
     else:
         E = np.zeros((0, 2), np.int64) if edges is None else np.asarray(edges)

@@ -38,12 +38,12 @@ _GROUND_FACE = np.array([[0, 1, 2]], dtype=np.int64)
 
 
 class ClientScene:
-    """The topology of a scene of `n` vertices with `obstacles`, and its states.
+    """The topology of a scene with `obstacles`, and its states.
 
     Parameters
     ----------
-    n : int
-        The scene's vertex count.
+    V : (N, 3) float
+        Any positions of the scene (validated with its topology; N is what is kept).
     edges, faces : int arrays or None
         The scene's topology (as `scene_arrays` takes it).
     obstacles : sequence of `penfree.sequence.Obstacle`
@@ -61,7 +61,7 @@ class ClientScene:
     --------
     >>> from penfree.sequence import Obstacle
     >>> x = np.array([[0.0, 0, 1], [1, 0, 1]])
-    >>> sc = ClientScene(2, [[0, 1]], None, [Obstacle("ground", normal=np.array([0.0, 0, 1]), offset=0.0)])
+    >>> sc = ClientScene(x, [[0, 1]], None, [Obstacle("ground", normal=np.array([0.0, 0, 1]), offset=0.0)])
     >>> sc.m, sc.F.tolist()
     (5, [[2, 3, 4]])
     >>> X = sc.states(1, [x, x, x, x], reach=0.1)[0]
@@ -69,10 +69,10 @@ class ClientScene:
     [0.0, 0.0, 0.0]
     """
 
-    def __init__(self, n, edges, faces, obstacles):
-        self.n = int(n)
+    def __init__(self, V, edges, faces, obstacles):
+        V, self.E_scene, self.F_scene = scene_arrays(V, edges, faces)
+        self.n = V.shape[0]
         self.obstacles = tuple(obstacles)
-        _, self.E_scene, self.F_scene = scene_arrays(np.zeros((self.n, 3)), edges, faces)
         Es, Fs, m = [np.zeros((0, 2), np.int64)], [np.zeros((0, 3), np.int64)], self.n
         for ob in self.obstacles:
             if ob.is_half_space:
@@ -83,7 +83,7 @@ class ClientScene:
                 Es.append(np.asarray(ob.edges, dtype=np.int64).reshape(-1, 2) + m)
             if ob.faces is not None:
                 Fs.append(np.asarray(ob.faces, dtype=np.int64).reshape(-1, 3) + m)
-            m += np.asarray(ob.frame(0)).shape[0]
+            m += ob.positions.shape[-2]  # (M, 3) or (T, M, 3), in memory or streamed
         self.m = m
         _, self.E_obstacles, self.F_obstacles = scene_arrays(np.zeros((m, 3)), np.concatenate(Es), np.concatenate(Fs))
         self.E = np.concatenate([self.E_scene, self.E_obstacles])
@@ -129,17 +129,17 @@ class ClientScene:
                 start.append(P)
                 target.append(P)
             else:
-                start.append(np.asarray(ob.frame(s), dtype=np.float64))
-                target.append(_target_frame(ob, s))
+                P = np.asarray(ob.frame(s), dtype=np.float64)
+                start.append(P)
+                target.append(_target_frame(ob, s, P))
         start, target = np.concatenate(start), np.concatenate(target)
         return [np.ascontiguousarray(np.concatenate([x, start if k < n_start else target]))
                 for k, x in enumerate(xs)]
 
 
-def _target_frame(ob, s) -> np.ndarray:
+def _target_frame(ob, s, P) -> np.ndarray:
     """A mesh obstacle at frame ``s + 1``, or moved on at its last velocity past the
-    recording's end."""
-    P = np.asarray(ob.frame(s), dtype=np.float64)
+    recording's end (`P`: its frame `s`)."""
     if np.ndim(ob.positions) == 2:
         return P
     T = len(ob.positions)

@@ -66,7 +66,7 @@ def _oracle(X, E, F, n, R):
 def test_topology_follows_the_scene_in_list_order():
     x, F = _sheet(3, 3, 0.05)
     box = _box((1, 1, 0), (2, 2, 1))
-    sc = ClientScene(len(x), None, F, [box, GROUND])
+    sc = ClientScene(x, None, F, [box, GROUND])
     assert (sc.n, sc.m) == (9, 9 + 8 + 3)
     np.testing.assert_array_equal(sc.F[:len(F)], F)
     np.testing.assert_array_equal(sc.F[len(F):len(F) + 12], box.faces + 9)
@@ -84,7 +84,7 @@ def test_ground_triangle_distances_are_the_planes(rng, far):
     x[:, 2] = np.abs(x[:, 2]) + 0.01
     xs = [x + rng.normal(0, 0.3, x.shape), x, x + [3.0, 0, 0], x]
     reach = 0.7
-    sc = ClientScene(len(x), None, None, [GROUND])
+    sc = ClientScene(x, None, None, [GROUND])
     states = sc.states(None, xs, reach, ref=1)
     tri = states[0][50:]
     for S in states:
@@ -102,7 +102,7 @@ def test_ground_triangle_distances_are_the_planes(rng, far):
 def test_kinematic_obstacle_targets_the_next_frame_or_its_last_velocity():
     x, F = _sheet(2, 2, 1.0)
     box = _box((0, 0, -1), (1, 1, 0.5), frames=[0.0, 0.1, 0.3])
-    sc = ClientScene(4, None, F, [box])
+    sc = ClientScene(x, None, F, [box])
     for s, want_target in ((1, 0.3), (2, 0.5)):  # frame 2 is the last: 0.3 + (0.3 - 0.1)
         start, target = sc.states(s, [x, x + 1.0], 0.1, n_start=1)
         np.testing.assert_allclose(start[4:], box.frame(s))
