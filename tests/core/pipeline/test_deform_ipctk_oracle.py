@@ -1,0 +1,212 @@
+"""Every written step of `deform`, judged by an oracle penfree does not share code with:
+IPC Toolkit's CCD on every candidate pair of the step's path, each hit confirmed or
+cleared by the pair's Euclidean distance along the path, and the half-spaces' signed
+distances at both ends.
+
+The scenes are the contact-rich inputs of real recordings: a sheet landing on the
+ground (a half-space, a floor mesh), resting on it at, below and above the thickness,
+two sheets squeezed together over a box, float32 data and coordinates far from the
+origin. Obstacles are held at the step's frame (SPEC section 5). A pair that starts
+within the thickness is pre-existing and skipped (SPEC section 6).
+"""
+
+import importlib.util
+
+import numpy as np
+import pytest
+
+from penfree.core.pipeline.deform import deform_sequence
+from penfree.core.trust.bounds import scene_arrays
+from penfree.sequence import Obstacle
+
+from _scenes import box_mesh, grid_faces, landing_sheet, scene, sheet
+
+pytestmark = pytest.mark.skipif(importlib.util.find_spec("ipctk") is None,
+                                reason="ipctk (penfree[ogc]) not installed; make test installs it")
+
+#: Path samples of a flagged pair's distance, then a bounded minimisation around the least.
+_SAMPLES = 257
+
+
+def _pair_min_distance(c, V0, V1, E, F):
+    """The smallest Euclidean distance of candidate `c` along the straight path V0 -> V1."""
+    from scipy.optimize import minimize_scalar
+
+    def dist(t):
+        return float(np.sqrt(c.compute_distance((1.0 - t) * V0 + t * V1, E, F)))
+
+    ts = np.linspace(0.0, 1.0, _SAMPLES)
+    d = np.array([dist(t) for t in ts])
+    t0 = ts[int(np.argmin(d))]
+    h = 1.0 / (_SAMPLES - 1)
+    r = minimize_scalar(dist, bounds=(max(0.0, t0 - h), min(1.0, t0 + h)), method="bounded",
+                        options={"xatol": 1e-15})
+    return min(float(d.min()), float(r.fun))
+
+
+def oracle_violations(seq, s, x0, x1, thickness, first=False):
+    """Pairs and vertices of step `s` (x0 -> x1, obstacles at frame s) that start farther
+    than `thickness` and come closer along the path: ``[(kind, ids, start, least)]``
+    (with `first`, only the first pair of each kind found)."""
+    import ipctk
+
+    N = x0.shape[0]
+    _, E, F = scene_arrays(seq.positions[0], seq.edges, seq.faces)
+    found = []
+    V0, V1, Es, Fs = [x0], [x1], [E.astype(np.int32)], [F.astype(np.int32)]
+    off = N
+    for ob in seq.obstacles:
+        if ob.is_half_space:
+            n = np.asarray(ob.normal, np.float64) / np.linalg.norm(ob.normal)
+            d0, d1 = x0 @ n - ob.offset, x1 @ n - ob.offset
+            for v in np.flatnonzero((d0 > thickness) & (d1 < thickness) | (d0 > 0) & (d1 <= 0)):
+                found.append(("plane", (int(v),), float(d0[v]), float(d1[v])))
+            continue
+        P = np.asarray(ob.frame(s), np.float64)
+        V0.append(P), V1.append(P)
+        if ob.faces is not None and len(ob.faces):
+            f = np.asarray(ob.faces, np.int32) + off
+            Fs.append(f), Es.append(ipctk.edges(f))
+        else:
+            Es.append(np.asarray(ob.edges, np.int32) + off)
+        off += P.shape[0]
+    V0, V1 = np.vstack(V0), np.vstack(V1)
+    mesh = ipctk.CollisionMesh(V0, np.vstack(Es), np.vstack(Fs))
+    if off > N:  # obstacle-obstacle pairs are not the scene's
+        mesh.can_collide = ipctk.make_static_obstacle_filter(N)
+    # Tight Inclusion reports a hit when its iterations run out (conservative): a
+    # budget below its default keeps the touching pairs of the controls fast
+    narrow = ipctk.TightInclusionCCD(tolerance=1e-6, max_iterations=100_000)
+    if ipctk.is_step_collision_free(mesh, V0, V1, min_distance=thickness, narrow_phase_ccd=narrow):
+        return found
+    C = ipctk.Candidates()
+    C.build(mesh, V0, V1, inflation_radius=thickness)
+    ME, MF = mesh.edges, mesh.faces
+    for kind, cands in (("ee", C.ee_candidates), ("fv", C.fv_candidates)):
+        for c in cands:
+            if first and found and found[-1][0] == kind:
+                break
+            d0 = float(np.sqrt(c.compute_distance(V0, ME, MF)))
+            if not d0 > thickness:
+                continue  # pre-existing: within the thickness at the start
+            hit, _ = c.ccd(c.dof(V0, ME, MF), c.dof(V1, ME, MF), min_distance=thickness, narrow_phase_ccd=narrow)
+            if not hit:
+                continue
+            # ipctk's hits are conservative (its minimum separation is tested in the
+            # max-norm, so it flags pairs up to sqrt(3) thickness apart): the distance decides
+            least = _pair_min_distance(c, V0, V1, ME, MF)
+            if least < thickness * (1.0 - 1e-9) or least < 1e-10:
+                found.append((kind, tuple(int(v) for v in c.vertex_ids(ME, MF)), d0, least))
+    return found
+
+
+def _check_result(seq, model, thickness):
+    out = deform_sequence(seq, model=model, thickness=thickness).steps
+    for k, s in enumerate(out["frame"]):
+        x0 = np.asarray(seq.positions[s], np.float64)
+        x1 = np.asarray(out["deformed"][k], np.float64)
+        assert oracle_violations(seq, int(s), x0, x1, thickness) == [], (model, thickness, int(s), out["model"][k])
+    return out
+
+
+def _landing(dtype, origin, rest=1e-3):
+    P, F = landing_sheet(n=9, T=6, rest=rest, speed=0.03, tilt=0.3)
+    rng = np.random.default_rng(7)
+    P = P + rng.normal(0.0, 1e-4, P.shape) * (P[..., 2:3] > rest + 1e-9) + origin
+    return P.astype(dtype), F
+
+
+def _floor(kind, origin):
+    if kind == "half-space":
+        return Obstacle("ground", normal=np.array([0.0, 0.0, 1.0]), offset=origin)
+    P = np.array([[-5.0, -5, 0], [6, -5, 0], [6, 6, 0], [-5, 6, 0]]) + origin
+    return Obstacle("floor", positions=P, faces=np.array([[0, 1, 2], [0, 2, 3]]))
+
+
+@pytest.mark.parametrize("dtype,origin", [(np.float64, 0.0), (np.float32, 0.0), (np.float64, 1e3)],
+                         ids=["float64", "float32", "far-from-origin"])
+@pytest.mark.parametrize("floor", ["half-space", "mesh"])
+@pytest.mark.parametrize("model", ["auto", "affine"])
+def test_landing_sheet_keeps_the_guarantee_for_ipctk(dtype, origin, floor, model):
+    """Resting 1e-3 above the ground, at thicknesses below, at and above the rest gap
+    (resting vertices then start inside it): no step brings a pair or a vertex closer."""
+    P, F = _landing(dtype, origin)
+    seq = scene(P, faces=F, obstacles=[_floor(floor, origin)], contact_radius=0.02)
+    moved = 0
+    for thickness in (0.0, 5e-4, 1e-3, 2e-3):
+        out = _check_result(seq, model, thickness)
+        moved += int(np.count_nonzero(out["model"] != "none"))
+    assert moved > 0  # not vacuous: maps were applied
+
+
+@pytest.mark.parametrize("model", ["auto", "affine", "per-component"])
+def test_squeezed_sheets_over_a_box_keep_the_guarantee_for_ipctk(model):
+    """Two sheets 5e-4 apart pressed together while sinking onto a box and the ground."""
+    n, T, gap = 7, 6, 5e-4
+    u, v = sheet(n, 0.5)
+    rng = np.random.default_rng(3)
+    frames = []
+    for t in range(T):
+        lo = np.stack([u, v, np.full_like(u, 0.1)], 1)
+        hi = np.stack([u, v, np.full_like(u, 0.1 + gap * max(0.2, 1 - 0.15 * t))], 1)
+        frames.append(np.vstack([lo, hi]) + rng.normal(0, gap * 0.05, (2 * n * n, 3)) + [0.01 * t, 0, -0.005 * t])
+    F = np.vstack([grid_faces(n), grid_faces(n) + n * n])
+    obstacles = [box_mesh([0.2, 0.2, -0.2], [0.3, 0.3, 0.095]),
+                 Obstacle("ground", normal=np.array([0.0, 0, 1]), offset=0.0)]
+    seq = scene(np.array(frames), faces=F, obstacles=obstacles, contact_radius=0.01)
+    moved = 0
+    for thickness in (0.0, 0.5 * gap, gap):
+        moved += int(np.count_nonzero(_check_result(seq, model, thickness)["model"] != "none"))
+    assert moved > 0
+
+
+def test_the_oracle_finds_a_path_through_the_floor_and_a_sheet():
+    """The oracle can fail: the constant-velocity prediction of a landing step goes
+    through the floor mesh, the half-space and, for a sheet falling onto another, the
+    other sheet; each is found, and the recorded (safe) step is not."""
+    P, F = _landing(np.float64, 0.0)
+    s = 4
+    x0 = P[s]
+    x_pred = 2.0 * P[s] - P[s - 1] - [0.0, 0.0, 0.05]  # pushed down through the ground
+    for floor in ("half-space", "mesh"):
+        seq = scene(P, faces=F, obstacles=[_floor(floor, 0.0)], contact_radius=0.02)
+        kinds = {f[0] for f in oracle_violations(seq, s, x0, x_pred, 0.0, first=True)}
+        if floor == "half-space":
+            assert kinds == {"plane"}
+        else:  # the sheet's vertices through the floor's faces (and its edges past the diagonal)
+            assert "fv" in kinds and kinds <= {"fv", "ee"}
+        assert oracle_violations(seq, s, x0, P[s + 1], 0.0) == []
+    # self contact: a sheet 0.01 above another, moved 0.02 down through it; and at a
+    # thickness of 0.005, moved 0.007 down (the gap falls to 0.003)
+    n = 5
+    u, v = sheet(n)
+    two = np.vstack([np.stack([u, v, np.zeros_like(u)], 1), np.stack([u, v, np.full_like(u, 0.01)], 1)])
+    F2 = np.vstack([grid_faces(n), grid_faces(n) + n * n])
+    seq = scene(np.stack([two, two]), faces=F2)
+    for drop, thickness in ((0.02, 0.0), (0.007, 0.005)):
+        moved = two.copy()
+        moved[n * n:, 2] -= drop
+        found = oracle_violations(seq, 0, two, moved, thickness, first=True)
+        assert found and {f[0] for f in found} <= {"ee", "fv"}
+        assert all(f[3] < thickness or f[3] < 1e-10 for f in found)
+
+
+@pytest.mark.parametrize("name,frames", [("twisted_cables.h5", (20, 40)), ("twisting_cloth_contact.h5", (26, 30)),
+                                         ("carried_stack.h5", (0, 20)), ("cloth_drape_box.h5", (10, 13))])
+def test_samples_keep_the_guarantee_for_ipctk(name, frames):
+    """Bundled recordings in contact (cables wrapped into a rope, a twisting strip folded
+    onto itself, a carried stack, cloth on a box on the ground), `auto` at their
+    thickness (half their contact radius) and at 0.9 contact radii, which puts their
+    closest pairs (about one contact radius apart) near or inside the thickness."""
+    from pathlib import Path
+
+    from penfree.formats import read_sequence
+
+    seq = read_sequence(str(Path(__file__).resolve().parents[3] / "samples" / name))
+    for thickness in (seq.thickness, 0.9 * seq.contact_radius):
+        out = deform_sequence(seq, model="auto", thickness=thickness, frames=frames).steps
+        for k, s in enumerate(out["frame"]):
+            x0 = np.asarray(seq.positions[s], np.float64)
+            x1 = np.asarray(out["deformed"][k], np.float64)
+            assert oracle_violations(seq, int(s), x0, x1, thickness) == [], (name, thickness, int(s))
+        assert np.count_nonzero(out["model"] != "none") > 0
