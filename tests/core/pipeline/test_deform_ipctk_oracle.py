@@ -44,6 +44,15 @@ def _pair_min_distance(c, V0, V1, E, F):
     return min(float(d.min()), float(r.fun))
 
 
+def _guarded(fn, *args, **kwargs):
+    """`fn`'s answer, or a hit where ipctk fails (its additive CCD can exhaust memory on a
+    query): ``(True, 0.0)``, which the distance along the path then decides."""
+    try:
+        return fn(*args, **kwargs)
+    except MemoryError:
+        return (True, 0.0)
+
+
 def oracle_violations(seq, s, x0, x1, thickness, first=False):
     """Pairs and vertices of step `s` (x0 -> x1, obstacles at frame s) that start farther
     than `thickness` and come closer along the path: ``[(kind, ids, start, least)]``
@@ -79,8 +88,8 @@ def oracle_violations(seq, s, x0, x1, thickness, first=False):
     # hit at t = 0 without zero times and loses it; `test_the_oracle_sees_what_tight_
     # inclusion_misses`); its iterations are capped (it then reports a hit: conservative)
     narrows = (ipctk.TightInclusionCCD(tolerance=1e-6, max_iterations=100_000), ipctk.AdditiveCCD())
-    if all(ipctk.is_step_collision_free(mesh, V0, V1, min_distance=thickness, narrow_phase_ccd=nc)
-           for nc in narrows):
+    if all(_guarded(ipctk.is_step_collision_free, mesh, V0, V1, min_distance=thickness, narrow_phase_ccd=nc)
+           is True for nc in narrows):
         C = None
     else:
         C = ipctk.Candidates()
@@ -95,7 +104,8 @@ def oracle_violations(seq, s, x0, x1, thickness, first=False):
                 continue  # pre-existing: within the thickness at the start
             q0, q1 = c.dof(V0, ME, MF), c.dof(V1, ME, MF)
             if not (np.sqrt(c.compute_distance(V1, ME, MF)) < thickness
-                    or any(c.ccd(q0, q1, min_distance=thickness, narrow_phase_ccd=nc)[0] for nc in narrows)):
+                    or any(_guarded(c.ccd, q0, q1, min_distance=thickness, narrow_phase_ccd=nc)[0]
+                           for nc in narrows)):
                 continue
             # the narrow phases' hits are conservative (Tight Inclusion tests the minimum
             # separation in the max-norm, so it flags pairs up to sqrt(3) thickness
