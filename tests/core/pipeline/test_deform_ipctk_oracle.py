@@ -83,10 +83,10 @@ def oracle_violations(seq, s, x0, x1, thickness, first=False):
     mesh = ipctk.CollisionMesh(V0, np.vstack(Es), np.vstack(Fs))
     if off > N:  # obstacle-obstacle pairs are not the scene's
         mesh.can_collide = ipctk.make_static_obstacle_filter(N)
-    # Two narrow phases, and the distance at the end: ipctk's Tight Inclusion misses a
-    # pair that starts within sqrt(3) thickness in the max-norm (its strategy re-runs a
-    # hit at t = 0 without zero times and loses it; `test_the_oracle_sees_what_tight_
-    # inclusion_misses`); its iterations are capped (it then reports a hit: conservative)
+    # Two narrow phases, and the distance at the end: ipctk's Tight Inclusion misses
+    # nearly parallel edges that start within the thickness in the max-norm and close
+    # below it (`test_the_oracle_sees_what_tight_inclusion_misses`); its iterations are
+    # capped (it then reports a hit: conservative)
     narrows = (ipctk.TightInclusionCCD(tolerance=1e-6, max_iterations=100_000), ipctk.AdditiveCCD())
     if all(_guarded(ipctk.is_step_collision_free, mesh, V0, V1, min_distance=thickness, narrow_phase_ccd=nc)
            is True for nc in narrows):
