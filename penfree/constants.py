@@ -77,7 +77,9 @@ SYM_SAFETY_REL = 1e-12
 MARGIN_GAP_RADIUS_FACTOR = 10.0
 #: The stored x_def may differ from the exact A x + b by at most NEAR_SLACK_REL / 2 * h
 #: per vertex (checked per candidate), so no near-pair radius exceeds
-#: MARGIN_GAP_RADIUS_FACTOR * h * (1 + NEAR_SLACK_REL).
+#: MARGIN_GAP_RADIUS_FACTOR * h * (1 + NEAR_SLACK_REL); or, where storing x_def in its
+#: dtype rounds by more (float32 far from the origin), by that rounding, up to h
+#: (`gate.StepGate.rounding_limit`: the radius then grows with it, up to 3x).
 NEAR_SLACK_REL = 0.01
 #: Fractions of the preferred map's step tried when every full candidate fails the
 #: safety gate (a prefix of its certified path), before doing nothing.

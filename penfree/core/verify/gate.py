@@ -13,7 +13,8 @@ states" and "Obstacles"):
 - with thickness h > 0 the margin is ``m = 1 / MARGIN_GAP_RADIUS_FACTOR``. A map whose
   path keeps ``sigma_min >= m_c`` (``m_c >= m``: its rigorous fast bound, else m)
   keeps every pair that starts more than ``(h + 2 delta) / m_c`` apart at least h
-  apart (delta: the rounding of the stored x_def, at most `NEAR_SLACK_REL` h / 2).
+  apart (delta: the rounding of the stored x_def, at most `NEAR_SLACK_REL` h / 2 or the
+  rounding of its dtype at its magnitude, `StepGate.rounding_limit`).
   The pairs closer than that and their start distances come from one proximity
   query per step (`verify.near_pairs`, radius `NEAR_FIRST_FACTOR` h, redone larger,
   up to ``1.01 h / m``, only for a candidate that needs it); each candidate's path
@@ -157,20 +158,40 @@ class StepGate:
         maps : list of (A (3, 3), b (3,), rows or None)
             Every applied map and the vertices it moved (None: all).
         """
+        stored = np.asarray(x_def).dtype
         x_def64 = np.asarray(x_def, dtype=np.float64)
         if np.array_equal(x_def64, self.x):
             return True  # doing nothing
         if not all(np.isfinite(A).all() and certify_map(A, self.margin) for A, _, _ in maps):
             return False
-        if self.has_topology and not self._near_ok(x_def64, maps):
+        if self.has_topology and not self._near_ok(x_def64, maps, stored):
             return False
         return self._obstacles_ok(x_def64)
 
-    def _near_ok(self, x_def64, maps) -> bool:
+    def rounding_limit(self, x_def64, stored) -> float:
+        """The largest deviation of the stored x_def from its exact map that a candidate
+        may have: `NEAR_SLACK_REL` h / 2, or the rounding of storing x_def in its dtype
+        when that is larger (at most h); inf at thickness 0 (any rounding: the pairs it
+        could make cross are checked instead).
+
+        The limit only bounds the near-pair radius ``(h + 2 delta) / m_c`` (every pair it
+        leaves out starts farther apart than the rounding could close), never a verdict.
+        Without the dtype term, float32 coordinates beyond ~8e4 h from the origin (84 m at
+        h = 1 mm, 8 m at 0.1 mm) made every map fail: their rounding alone exceeded h / 200.
+        """
+        if not self.thickness > 0.0:
+            return np.inf
+        limit = 0.5 * NEAR_SLACK_REL * self.thickness
+        if np.issubdtype(stored, np.floating) and len(x_def64):
+            # 4 half-ulps of the largest stored coordinate, with the start's magnitude
+            scale = max(float(np.abs(x_def64).max()), float(np.abs(self.x).max()))
+            limit = max(limit, min(self.thickness, 2.0 * float(np.finfo(stored).eps) * scale))
+        return limit
+
+    def _near_ok(self, x_def64, maps, stored=np.dtype(np.float64)) -> bool:
         from .pairs import check_pairs
 
-        # thickness 0: any rounding, the pairs it could make cross are checked instead
-        limit = 0.5 * NEAR_SLACK_REL * self.thickness if self.thickness > 0.0 else np.inf
+        limit = self.rounding_limit(x_def64, stored)
         reach = 0.0  # pairs starting closer than this are not covered by the certificates
         for A, b, rows in maps:
             sl = slice(None) if rows is None else rows

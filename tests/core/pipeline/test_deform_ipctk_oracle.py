@@ -139,8 +139,8 @@ def _floor(kind, origin):
     return Obstacle("floor", positions=P, faces=np.array([[0, 1, 2], [0, 2, 3]]))
 
 
-@pytest.mark.parametrize("dtype,origin", [(np.float64, 0.0), (np.float32, 0.0), (np.float64, 1e3)],
-                         ids=["float64", "float32", "far-from-origin"])
+@pytest.mark.parametrize("dtype,origin", [(np.float64, 0.0), (np.float32, 0.0), (np.float64, 1e3), (np.float32, 1e3)],
+                         ids=["float64", "float32", "far-from-origin", "float32-far-from-origin"])
 @pytest.mark.parametrize("floor", ["half-space", "mesh"])
 @pytest.mark.parametrize("model", ["auto", "affine"])
 def test_landing_sheet_keeps_the_guarantee_for_ipctk(dtype, origin, floor, model):

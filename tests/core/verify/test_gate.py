@@ -251,3 +251,51 @@ def test_gate_refuses_to_move_a_touching_pair(thickness):
     assert not gate.passes(up, [(np.eye(3), np.zeros(3), np.arange(3)), (np.eye(3), lift, np.arange(3, 6))])
     assert not gate.passes(x + lift, [(np.eye(3), lift, None)])
     assert gate.passes(x.copy(), [(np.eye(3), np.zeros(3), None)])
+
+
+@pytest.mark.parametrize("origin", [0.0, 100.0, 1e3, 1e4])
+def test_float32_far_from_the_origin_keeps_its_maps_at_a_thickness(origin):
+    """Two sheets 0.01 apart turning and drifting, stored as float32 at `origin`, with a
+    thickness of 5e-4: storing x_def rounds it by 4e-6 at 100 and 5e-4 at 1e4, more than
+    h / 200. The gate allows the rounding of the dtype (up to h), so up to 1e3 the steps
+    keep the maps of the same scene at the origin in float64 (every map was refused
+    before, from 100 on), and every written step verifies at the thickness."""
+    from penfree.core.pipeline.deform import deform_sequence
+    from penfree.core.verify.path import verify_step
+    from penfree.sequence import Sequence
+
+    from _geom import rot, two_sheets
+
+    V, F = two_sheets(n=4, gap=0.01)
+    frames = np.stack([V @ rot([0, 0, 1], 0.5 * s).T + [0.002 * s, 0, 0.001 * s] for s in range(5)])
+    h = 5e-4
+    ref = deform_sequence(Sequence(positions=frames, faces=F).validate(), model="affine", thickness=h).steps
+    assert set(ref["model"]) == {"affine"}
+    P = (frames + origin).astype(np.float32)
+    out = deform_sequence(Sequence(positions=P, faces=F).validate(), model="affine", thickness=h).steps
+    if origin <= 1e3:  # at 1e4 float32 steps by 1e-3, twice h: some maps round too far
+        assert list(out["model"]) == list(ref["model"])
+    for k, s in enumerate(out["frame"]):
+        assert verify_step(P[s], out["deformed"][k], faces=F, thickness=h, pre_existing=True).ok
+    gate = StepGate(P[1], faces=F, thickness=h)
+    limit = gate.rounding_limit(P[1].astype(np.float64), np.dtype(np.float32))
+    assert limit == max(0.005 * h, min(h, 2.0 * 2.0**-23 * float(np.abs(P[1]).max())))
+    assert gate.rounding_limit(P[1].astype(np.float64), np.dtype(np.float64)) == 0.005 * h
+
+
+def test_gate_refuses_a_rounding_beyond_the_thickness():
+    """An x_def farther from its map than the thickness (not a rounding: an edit) fails
+    the gate in float32 as in float64, even far from the origin."""
+    from _geom import two_sheets
+
+    V, F = two_sheets(n=3, gap=0.01)
+    h = 5e-4
+    for origin, dtype in ((0.0, np.float64), (1e3, np.float32)):
+        x = (V + origin).astype(dtype)
+        gate = StepGate(x, faces=F, thickness=h)
+        b = np.array([0.0, 0.0, 1e-3])
+        moved = (x.astype(np.float64) + b).astype(dtype)
+        assert gate.passes(moved, [(np.eye(3), b, None)])
+        edited = moved.copy()
+        edited[0, 0] += dtype(2 * h)
+        assert not gate.passes(edited, [(np.eye(3), b, None)])
