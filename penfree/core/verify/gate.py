@@ -111,6 +111,7 @@ class StepGate:
 
     def __init__(self, x, *, edges=None, faces=None, thickness=0.0, obstacles=(), frame=0):
         self.x = np.ascontiguousarray(x, dtype=np.float64)
+        self.magnitude = float(np.abs(self.x).max()) if len(self.x) else 0.0  # largest start coordinate
         self.edges, self.faces = edges, faces
         self.thickness = float(thickness)
         self.margin = margin_rule(self.thickness)
@@ -184,11 +185,11 @@ class StepGate:
         limit = 0.5 * NEAR_SLACK_REL * self.thickness
         if np.issubdtype(stored, np.floating) and len(x_def64):
             # 4 half-ulps of the largest stored coordinate, with the start's magnitude
-            scale = max(float(np.abs(x_def64).max()), float(np.abs(self.x).max()))
+            scale = max(float(np.abs(x_def64).max()), self.magnitude)
             limit = max(limit, min(self.thickness, 2.0 * float(np.finfo(stored).eps) * scale))
         return limit
 
-    def _near_ok(self, x_def64, maps, stored=np.dtype(np.float64)) -> bool:
+    def _near_ok(self, x_def64, maps, stored) -> bool:
         from .pairs import check_pairs
 
         limit = self.rounding_limit(x_def64, stored)
@@ -212,7 +213,7 @@ class StepGate:
         if reach == 0.0:
             return True
         # computed distances can lie above the true ones (`DISTANCE_ROUNDING_REL`)
-        reach = reach * (1.0 + 1e-6) + DISTANCE_ROUNDING_REL * (float(np.abs(self.x).max()) if len(self.x) else 0.0)
+        reach = reach * (1.0 + 1e-6) + DISTANCE_ROUNDING_REL * self.magnitude
         close = [(kind, ij[d0 < reach], idx[d0 < reach]) for kind, ij, idx, d0 in self.near(reach)]
         return check_pairs(close, self.x, x_def64, self.thickness)
 
