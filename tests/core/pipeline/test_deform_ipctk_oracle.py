@@ -19,6 +19,7 @@ from penfree.core.pipeline.deform import deform_sequence
 from penfree.core.trust.bounds import scene_arrays
 from penfree.sequence import Obstacle
 
+from _samples import SAMPLES
 from _scenes import box_mesh, grid_faces, landing_sheet, scene, sheet
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("ipctk") is None,
@@ -116,8 +117,9 @@ def oracle_violations(seq, s, x0, x1, thickness, first=False):
     return found
 
 
-def _check_result(seq, model, thickness):
-    out = deform_sequence(seq, model=model, thickness=thickness).steps
+def _check_result(seq, model, thickness, frames=None):
+    """`deform` of `seq`, every written step judged by the oracle; the steps."""
+    out = deform_sequence(seq, model=model, thickness=thickness, frames=frames).steps
     for k, s in enumerate(out["frame"]):
         x0 = np.asarray(seq.positions[s], np.float64)
         x1 = np.asarray(out["deformed"][k], np.float64)
@@ -214,17 +216,11 @@ def test_samples_keep_the_guarantee_for_ipctk(name, frames):
     onto itself, a carried stack, cloth on a box on the ground), `auto` at their
     thickness (half their contact radius) and at 0.9 contact radii, which puts their
     closest pairs (about one contact radius apart) near or inside the thickness."""
-    from pathlib import Path
-
     from penfree.formats import read_sequence
 
-    seq = read_sequence(str(Path(__file__).resolve().parents[3] / "samples" / name))
+    seq = read_sequence(str(SAMPLES / name))
     for thickness in (seq.thickness, 0.9 * seq.contact_radius):
-        out = deform_sequence(seq, model="auto", thickness=thickness, frames=frames).steps
-        for k, s in enumerate(out["frame"]):
-            x0 = np.asarray(seq.positions[s], np.float64)
-            x1 = np.asarray(out["deformed"][k], np.float64)
-            assert oracle_violations(seq, int(s), x0, x1, thickness) == [], (name, thickness, int(s))
+        out = _check_result(seq, "auto", thickness, frames)
         assert np.count_nonzero(out["model"] != "none") > 0
 
 
@@ -280,13 +276,11 @@ def test_verify_misses_no_violation_the_oracle_finds(name):
     step's motion), at thickness 0, the file's and 0.9 contact radii: `verify_step` (the
     deform reading) flags every step in which the oracle finds a pair or a vertex
     violating, and some steps violate (the check is not vacuous)."""
-    from pathlib import Path
-
     from penfree.core.contact.obstacles import as_verify_obstacles
     from penfree.core.verify.path import verify_step
     from penfree.formats import read_sequence
 
-    seq = read_sequence(str(Path(__file__).resolve().parents[3] / "samples" / name))
+    seq = read_sequence(str(SAMPLES / name))
     rng = np.random.default_rng(11)
     verdicts = []
     for _ in range(16):
