@@ -69,12 +69,22 @@ FAST_CERT_ROUNDING_C = 64.0
 #: the rounded result still passes the fast test.
 SYM_SAFETY_REL = 1e-12
 
-#: The one margin rule (`core.gate.margin_rule`): with a thickness h > 0 every map
+#: The margin rule of a thickness (`core.gate.margin_rule`): with h > 0 every map
 #: must keep sigma_min(I + tD) above 1 / this factor, which keeps every pair that
 #: starts more than this many thicknesses apart at least h apart; the pairs closer
 #: than that (one proximity query) go through the conservative CCD. 0.1 barely
 #: restricts per-frame motion (rotations up to arccos(0.1) = 84 deg per step).
 MARGIN_GAP_RADIUS_FACTOR = 10.0
+#: The margin every map `deform` writes is certified with, at thickness 0 too
+#: (`core.gate.deform_margin`). Margin 0 proves the guarantee there (a nonsingular path
+#: is a bijection), but only in exact arithmetic for a map certified barely: `sym` at
+#: margin 0 projects a half-turn onto the boundary, and a rigid fit of two rods, one
+#: turning 0.7 rad a step, came out as ``A ~ n n^T`` (sigma_min 4e-12): x_def put the
+#: whole scene on a line, every pair of rods within 4e-13 of each other. 0.1, the
+#: margin of a positive thickness, keeps every pair at least a tenth of its start
+#: distance along the path; real steps certify at 0.9 or more (the bundled samples:
+#: one per-component step of 39 at 0.034, every other one above 0.28).
+DEFORM_MIN_MARGIN = 0.1
 #: The stored x_def may differ from the exact A x + b by at most NEAR_SLACK_REL / 2 * h
 #: per vertex (checked per candidate), so no near-pair radius exceeds
 #: MARGIN_GAP_RADIUS_FACTOR * h * (1 + NEAR_SLACK_REL); or, where storing x_def in its

@@ -28,8 +28,8 @@ from .options import (
               help="How a map that fails the certificate is made safe.")
 @click.option("--margin", type=FiniteFloat(0.0, 1.0, max_open=True), default=None,
               help="Required lower bound m of sigma_min(I + tD) on [0,1] "
-                   "(default and minimum: 0, or 0.1 when a thickness applies; the pairs the "
-                   "certificate does not keep apart, at most 10 thicknesses, are checked by CCD).")
+                   "(default and minimum: 0.1; with a thickness, the pairs the certificate "
+                   "does not keep apart, at most 10 thicknesses, are checked by CCD).")
 @thickness_option
 @contact_radius_option
 @frames_option

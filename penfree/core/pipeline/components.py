@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import InputError
-from ..verify.gate import margin_rule
+from ..verify.gate import deform_margin
 from ..fit.step import fit_step
 
 #: verify_step lists violating pairs up to this many per round (all of them in practice).
@@ -122,8 +122,8 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
     weights, model, projection
         As in `fit_step`, per group. `model` is a model of the ladder.
     margin : float or None
-        Certificate margin of every group's map. None: the one margin rule
-        (`gate.margin_rule`); with a thickness the pairs closer than the rule covers
+        Certificate margin of every group's map. None: deform's
+        (`gate.deform_margin`); with a thickness the pairs closer than the rule covers
         are checked by the caller's gate (`gate.StepGate`).
     out : (N, 3) array or None
 
@@ -152,7 +152,7 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
         raise InputError(f"component labels must be ({n},); got {labels.shape}")
     C = int(labels.max()) + 1 if n else 0
     if margin is None:
-        margin = margin_rule(thickness)
+        margin = deform_margin(thickness)
     w = None if weights is None else np.asarray(weights, dtype=np.float64)
     faces_arr = None if faces is None else np.asarray(faces, dtype=np.int64)
     group = np.arange(C)  # group of each component: its smallest member

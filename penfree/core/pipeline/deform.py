@@ -4,7 +4,7 @@
 `strategy.Auto`, `strategy.PerComponent`) proposes maps, preferred first (and the preferred
 one's shortened steps before doing nothing, `strategy.with_shortened`); the first one
 that passes the shared safety gate (`gate.StepGate`: the exact certificate with the
-one margin rule, the near-pair CCD when a thickness applies, the obstacles) is
+deform margin (`gate.deform_margin`), the near-pair CCD when a thickness applies, the obstacles) is
 applied. Doing nothing ends every chain and always passes. It returns plain arrays in
 the layout of SPEC section 8; writing them is the formats layer's job.
 """
@@ -20,7 +20,7 @@ import numpy as np
 from ..._version import __version__
 from ...errors import CertificateError, InputError
 from ..fit.certificate import certify_map
-from ..verify.gate import StepGate, margin_rule
+from ..verify.gate import StepGate, deform_margin
 from ..verify.path import check_thickness
 from ..trust.stats import compute_stats, residual_summary
 from ..fit.step import fit_step
@@ -53,8 +53,9 @@ def step_indices(n_frames: int, frames=None) -> np.ndarray:
 
 
 def required_margin(thickness, margin=None) -> float:
-    """The margin every map of a step must be certified with: the rule's, or a larger explicit one."""
-    rule = margin_rule(thickness)
+    """The margin every map of a step must be certified with: deform's (`gate.deform_margin`),
+    or a larger explicit one."""
+    rule = deform_margin(thickness)
     return rule if margin is None else max(rule, float(margin))
 
 
@@ -73,8 +74,8 @@ def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thic
     projection : str
         As in `fit_step`.
     margin : float or None
-        Required lower bound of sigma_min(M(t)) beyond the one margin rule
-        (`gate.margin_rule`: 0 at thickness 0, else 0.1); None: the rule's.
+        Required lower bound of sigma_min(M(t)) beyond deform's margin
+        (`gate.deform_margin`: 0.1); None: that one.
     thickness : float or None
         Hard minimum separation; None takes the sequence's.
     contact_radius : float or None

@@ -1,12 +1,14 @@
-"""The shared safety gate of a step: one margin rule, the certificate, near pairs, obstacles.
+"""The shared safety gate of a step: deform's margin, the certificate, near pairs, obstacles.
 
 Every map `deform` writes passes `StepGate.passes` (SPEC section 5, "Real start
 states" and "Obstacles"):
 
-- the exact certificate `certificate.certify_map(A, margin_rule(thickness))` of every
-  applied map. With thickness 0 the margin is 0: a nonsingular path of the exact map
-  ``A x + b`` maps every primitive by one bijection, so no disjoint pair ever meets,
-  whatever the start state holds. The stored x_def is that map rounded (delta, below);
+- the exact certificate `certificate.certify_map(A, deform_margin(thickness))` of every
+  applied map. With thickness 0 a margin of 0 would do (`margin_rule`, what verify
+  holds a result to): a nonsingular path of the exact map ``A x + b`` maps every
+  primitive by one bijection, so no disjoint pair ever meets, whatever the start state
+  holds. deform asks 0.1 there too (`DEFORM_MIN_MARGIN`): a map that is nonsingular only
+  barely squashes the scene (a half-turn projected at margin 0 put it on a line). The stored x_def is that map rounded (delta, below);
   a pair starting within ``2 delta / m_c`` (``m_c > 0`` a certified margin of the map)
   could cross by the rounding alone, so those pairs go through the exact CCD as below
   (a vertex 1e-17 above a face crossed it under a certified rotation);
@@ -34,15 +36,24 @@ import numpy as np
 from numba import njit
 
 from ...constants import (
-    DISTANCE_ROUNDING_REL, MARGIN_GAP_RADIUS_FACTOR, NEAR_FIRST_FACTOR, NEAR_SLACK_REL, UNIT_ROUNDOFF,
+    DEFORM_MIN_MARGIN, DISTANCE_ROUNDING_REL, MARGIN_GAP_RADIUS_FACTOR, NEAR_FIRST_FACTOR, NEAR_SLACK_REL, UNIT_ROUNDOFF,
     VERIFY_MARGIN_LADDER,
 )
 from ..fit.certificate import certify, certify_map, fast_margin_bound
 
 
 def margin_rule(thickness) -> float:
-    """The certificate margin every path uses: 0 for thickness 0, else ``1 / MARGIN_GAP_RADIUS_FACTOR``."""
+    """The certificate margin that proves the guarantee (SPEC section 5): 0 for thickness 0,
+    else ``1 / MARGIN_GAP_RADIUS_FACTOR``. verify and the report's re-check hold a
+    result's maps to it (files written before `deform_margin` included)."""
     return 0.0 if float(thickness) <= 0.0 else 1.0 / MARGIN_GAP_RADIUS_FACTOR
+
+
+def deform_margin(thickness) -> float:
+    """The margin every map deform writes is certified with: `margin_rule`'s, and at least
+    `DEFORM_MIN_MARGIN` (0.1) at thickness 0, where margin 0 admits maps that squash the
+    scene onto a line."""
+    return max(margin_rule(thickness), DEFORM_MIN_MARGIN)
 
 
 def positive_margin(A):
@@ -114,7 +125,7 @@ class StepGate:
         self.magnitude = float(np.abs(self.x).max()) if len(self.x) else 0.0  # largest start coordinate
         self.edges, self.faces = edges, faces
         self.thickness = float(thickness)
-        self.margin = margin_rule(self.thickness)
+        self.margin = deform_margin(self.thickness)
         self.obstacles = list(obstacles or ())
         self.frame = int(frame)
         self._near, self._near_radius = None, 0.0

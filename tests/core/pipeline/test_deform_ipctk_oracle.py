@@ -209,6 +209,84 @@ def test_the_oracle_finds_a_path_through_the_floor_and_a_sheet():
         assert all(f[3] < thickness or f[3] < 1e-10 for f in found)
 
 
+def _turn(axis, angle):
+    """The rotation by `angle` about `axis` (Rodrigues)."""
+    k = np.asarray(axis, float) / np.linalg.norm(axis)
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
+
+
+def _turning_rods(w, gap, m=12, T=6):
+    """Two rods of m vertices: one along x, the other `gap` above it turning `w` rad a
+    step about z."""
+    s = np.linspace(-0.3, 0.3, m)
+    low = np.stack([s, np.zeros(m), np.zeros(m)], 1)
+    high = np.stack([s, np.zeros(m), np.full(m, gap)], 1)
+    P = np.array([np.vstack([low, high @ _turn([0, 0, 1], w * t).T]) for t in range(T)])
+    E = np.array([[i, i + 1] for i in range(m - 1)] + [[m + i, m + i + 1] for i in range(m - 1)])
+    return P, E
+
+
+def _spinning_sheet(w, axis, gap, n=6, T=6):
+    """A sheet spinning `w` rad a step about `axis` through its centre, `gap` above another."""
+    u, v = sheet(n, 0.4)
+    low = np.stack([u - 0.2, v - 0.2, np.zeros_like(u)], 1)
+    c = np.array([0.0, 0.0, gap])
+    P = np.array([np.vstack([low, low @ _turn(axis, w * t).T + c]) for t in range(T)])
+    return P, np.vstack([grid_faces(n), grid_faces(n) + n * n])
+
+
+def _tumbling_sheet(w, height, n=6, T=6):
+    """A sheet tumbling `w` rad a step about a horizontal axis `height` above the ground."""
+    u, v = sheet(n, 0.3)
+    flat = np.stack([u - 0.15, v - 0.15, np.zeros_like(u)], 1)
+    P = np.array([flat @ _turn([1, 0.2, 0], w * t).T + [0.01 * t, 0.0, height] for t in range(T)])
+    return P, grid_faces(n)
+
+
+def test_a_rigid_half_turn_is_not_squashed_onto_a_line():
+    """At step 4 of the turning rods the rigid fit is nearly a half-turn, whose `sym`
+    projection at margin 0 is ``A ~ n n^T``: it puts both rods on one line (every pair
+    within 4e-13 along the path, which the oracle flags). Margin 0 proves the guarantee
+    in exact arithmetic, but deform certifies every map at 0.1, at thickness 0 too."""
+    from penfree import fit_step
+    from penfree.core.fit.certificate import certify_map
+
+    P, E = _turning_rods(0.7, 1e-3)
+    r = fit_step(P[3], P[4], model="rigid", margin=0.0)
+    assert np.linalg.svd(r.A, compute_uv=False)[-1] < 1e-9  # the map margin 0 admits
+    seq = scene(P, edges=E, contact_radius=0.01)
+    out = _check_result(seq, "rigid", 0.0)
+    assert out["margin_required"].tolist() == [0.1] * (seq.n_frames - 1)
+    for k in range(len(out["frame"])):
+        assert certify_map(out["A"][k], 0.1)
+        assert np.linalg.svd(out["A"][k], compute_uv=False)[-1] >= 0.1 * (1 - 1e-9)
+    assert np.count_nonzero(out["model"] != "none") >= 4
+
+
+@pytest.mark.parametrize("model", ["auto", "affine", "per-component", "rigid"])
+def test_large_rotations_keep_the_guarantee_for_ipctk(model):
+    """Half a turn and more per step near contact, at thicknesses 0 and 1.5e-3: a sheet
+    spinning 2.5 and 3.1 rad a step 2e-3 above another (about z and a tilted axis), a
+    sheet tumbling 2.5 rad a step 0.16 above the ground (half-space and floor mesh), rods
+    turning 0.7-2.5 rad a step 1e-3 above each other."""
+    scenes = []
+    for w, axis in ((2.5, [0, 0, 1]), (3.1, [1, 1, 0.3])):
+        P, F = _spinning_sheet(w, axis, 2e-3)
+        scenes.append(scene(P, faces=F, contact_radius=0.01))
+    for floor in ("half-space", "mesh"):
+        P, F = _tumbling_sheet(2.5, 0.16)
+        scenes.append(scene(P, faces=F, obstacles=[_floor(floor, 0.0)], contact_radius=0.01))
+    for w in (0.7, 1.5, 2.5):
+        P, E = _turning_rods(w, 1e-3)
+        scenes.append(scene(P, edges=E, contact_radius=0.01))
+    moved = 0
+    for seq in scenes:
+        for thickness in (0.0, 1.5e-3):
+            moved += int(np.count_nonzero(_check_result(seq, model, thickness)["model"] != "none"))
+    assert moved > 0
+
+
 @pytest.mark.parametrize("name,frames", [("twisted_cables.h5", (20, 40)), ("twisting_cloth_contact.h5", (26, 30)),
                                          ("carried_stack.h5", (0, 20)), ("cloth_drape_box.h5", (10, 13))])
 def test_samples_keep_the_guarantee_for_ipctk(name, frames):

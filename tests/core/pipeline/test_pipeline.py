@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from penfree.core.fit.certificate import certify
-from penfree.core.verify.gate import StepGate, margin_rule
+from penfree.core.verify.gate import StepGate, deform_margin, margin_rule
 from penfree.core.contact.obstacles import as_verify_obstacles
 from penfree.core.pipeline.deform import deform_sequence, required_margin, summarize_steps
 from penfree.core.verify.path import verify_step
@@ -205,9 +205,13 @@ def test_start_within_thickness_summary_is_true():
     _check_written(seq, out)
 
 
-def test_one_margin_rule():
+def test_margin_rules():
+    """The guarantee's margin (verify, report checks) is 0 at thickness 0; deform's is 0.1
+    at every thickness (`test_a_rigid_half_turn_is_not_squashed_onto_a_line`)."""
     assert margin_rule(0.0) == 0.0 and margin_rule(1e-3) == 0.1
-    assert required_margin(0.0) == 0.0 and required_margin(1e-3, 0.3) == 0.3 and required_margin(1e-3, 0.01) == 0.1
+    assert deform_margin(0.0) == 0.1 and deform_margin(1e-3) == 0.1
+    assert required_margin(0.0) == 0.1 and required_margin(0.0, 0.05) == 0.1
+    assert required_margin(1e-3, 0.3) == 0.3 and required_margin(1e-3, 0.01) == 0.1
 
 
 def test_shortened_step_is_a_prefix_of_the_path():
