@@ -82,8 +82,8 @@ MARGIN_GAP_RADIUS_FACTOR = 10.0
 #: turning 0.7 rad a step, came out as ``A ~ n n^T`` (sigma_min 4e-12): x_def put the
 #: whole scene on a line, every pair of rods within 4e-13 of each other. 0.1, the
 #: margin of a positive thickness, keeps every pair at least a tenth of its start
-#: distance along the path; real steps certify at 0.9 or more (the bundled samples:
-#: one per-component step of 39 at 0.034, every other one above 0.28).
+#: distance along the path; real steps certify far above it (the bundled samples at
+#: thickness 0, 4 models: one per-component step at 0.034, every other one above 0.28).
 DEFORM_MIN_MARGIN = 0.1
 #: The stored x_def may differ from the exact A x + b by at most NEAR_SLACK_REL / 2 * h
 #: per vertex (checked per candidate), so no near-pair radius exceeds

@@ -3,9 +3,9 @@
 `deform_sequence` is a short loop: per step, a strategy (`strategy.SingleMap`,
 `strategy.Auto`, `strategy.PerComponent`) proposes maps, preferred first (and the preferred
 one's shortened steps before doing nothing, `strategy.with_shortened`); the first one
-that passes the shared safety gate (`gate.StepGate`: the exact certificate with the
-deform margin (`gate.deform_margin`), the near-pair CCD when a thickness applies, the obstacles) is
-applied. Doing nothing ends every chain and always passes. It returns plain arrays in
+that passes the shared safety gate (`gate.StepGate`: the exact certificate at deform's
+margin, `gate.deform_margin`; the near-pair CCD when a thickness applies; the obstacles)
+is applied. Doing nothing ends every chain and always passes. It returns plain arrays in
 the layout of SPEC section 8; writing them is the formats layer's job.
 """
 

@@ -8,7 +8,8 @@ states" and "Obstacles"):
   holds a result to): a nonsingular path of the exact map ``A x + b`` maps every
   primitive by one bijection, so no disjoint pair ever meets, whatever the start state
   holds. deform asks 0.1 there too (`DEFORM_MIN_MARGIN`): a map that is nonsingular only
-  barely squashes the scene (a half-turn projected at margin 0 put it on a line). The stored x_def is that map rounded (delta, below);
+  barely squashes the scene (a half-turn projected at margin 0 put it on a line). The
+  stored x_def is that map rounded (delta, below);
   a pair starting within ``2 delta / m_c`` (``m_c > 0`` a certified margin of the map)
   could cross by the rounding alone, so those pairs go through the exact CCD as below
   (a vertex 1e-17 above a face crossed it under a certified rotation);
