@@ -10,7 +10,7 @@ states" and "Obstacles"):
   holds. deform asks 0.1 there too (`DEFORM_MIN_MARGIN`): a map that is nonsingular only
   barely squashes the scene (a half-turn projected at margin 0 put it on a line). The
   stored x_def is that map rounded (delta, below);
-  a pair starting within ``2 delta / m_c`` (``m_c > 0`` a certified margin of the map)
+  a pair starting within ``2 delta / m_c`` (``m_c >= 0.1`` a certified margin of the map)
   could cross by the rounding alone, so those pairs go through the exact CCD as below
   (a vertex 1e-17 above a face crossed it under a certified rotation);
 - with thickness h > 0 the margin is ``m = 1 / MARGIN_GAP_RADIUS_FACTOR``. A map whose
@@ -37,8 +37,8 @@ import numpy as np
 from numba import njit
 
 from ...constants import (
-    DEFORM_MIN_MARGIN, DISTANCE_ROUNDING_REL, MARGIN_GAP_RADIUS_FACTOR, NEAR_FIRST_FACTOR, NEAR_SLACK_REL, UNIT_ROUNDOFF,
-    VERIFY_MARGIN_LADDER,
+    DEFORM_MIN_MARGIN, DISTANCE_ROUNDING_REL, MARGIN_GAP_RADIUS_FACTOR, NEAR_FIRST_FACTOR, NEAR_SLACK_REL,
+    UNIT_ROUNDOFF, VERIFY_MARGIN_LADDER,
 )
 from ..fit.certificate import certify, certify_map, fast_margin_bound
 
@@ -214,11 +214,7 @@ class StepGate:
                 return False
             if self.thickness == 0.0 and delta == 0.0:
                 continue  # x_def is the exact map: its certificate covers every pair
-            m_c = max(self.margin, fast_margin_bound(A))  # certify_map(A, margin) passed
-            if not m_c > 0.0:
-                m_c = positive_margin(A)
-                if m_c is None:
-                    return False
+            m_c = max(self.margin, fast_margin_bound(A))  # certify_map(A, margin) passed; margin >= 0.1
             reach = max(reach, (self.thickness + 2.0 * delta) / m_c)
         if not np.isfinite(reach):
             return False

@@ -19,6 +19,7 @@ from penfree.core.pipeline.deform import deform_sequence
 from penfree.core.trust.bounds import scene_arrays
 from penfree.sequence import Obstacle
 
+from _geom import rot
 from _samples import SAMPLES
 from _scenes import box_mesh, grid_faces, landing_sheet, scene, sheet
 
@@ -229,10 +230,8 @@ def test_the_oracle_finds_a_path_through_the_floor_and_a_sheet():
 
 
 def _turn(axis, angle):
-    """The rotation by `angle` about `axis` (Rodrigues)."""
-    k = np.asarray(axis, float) / np.linalg.norm(axis)
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K
+    """The rotation by `angle` radians about `axis` (`_geom.rot` takes degrees)."""
+    return rot(axis, np.degrees(angle))
 
 
 def _turning_rods(w, gap, m=12, T=6):
