@@ -39,7 +39,7 @@ from ...errors import InputError
 from ..parallel import parallel_kernel
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _pp(px, py, pz, qx, qy, qz):
     dx = px - qx
     dy = py - qy
@@ -47,7 +47,7 @@ def _pp(px, py, pz, qx, qy, qz):
     return dx * dx + dy * dy + dz * dz
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _pe(px, py, pz, ax, ay, az, bx, by, bz):
     dx = bx - ax
     dy = by - ay
@@ -198,7 +198,7 @@ _TINY_SQ = 1e-200
 _HUGE_SQ = 1e200
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _gap_over(num, nn):
     # The gap num / |n| along a direction n with |n|^2 = nn (0.0 where it proves nothing).
     if num > 0.0 and nn > _TINY_SQ and nn < _HUGE_SQ:
@@ -206,7 +206,7 @@ def _gap_over(num, nn):
     return 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _ee_gap(ea0x, ea0y, ea0z, ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z):
     """A lower bound of the distance of two closed segments (0.0 where it proves
     nothing): the gap between their projections onto a line, which no pair of their
@@ -244,7 +244,7 @@ def _ee_gap(ea0x, ea0y, ea0z, ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb
     return max(g, _gap_over(num, nx * nx + ny * ny + nz * nz))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _pt_gap(px, py, pz, t0x, t0y, t0z, t1x, t1y, t1z, t2x, t2y, t2z):
     """A lower bound of the distance from a point to a closed triangle (0.0 where it
     proves nothing): the gap between their projections onto w = 3 (centroid - p),

@@ -33,7 +33,7 @@ _ERR_REL = 1e-14
 _TINY = 1e-250
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _orient3d_xyz(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
     # `orient3d_sign` on coordinates.
     adx, ady, adz = ax - dx, ay - dy, az - dz
@@ -63,7 +63,7 @@ def orient3d_sign(a, b, c, d):
     return _orient3d_xyz(a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2], d[0], d[1], d[2])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _segment_may_meet_xyz(px, py, pz, qx, qy, qz, ax, ay, az, bx, by, bz, cx, cy, cz):
     # `segment_may_meet_triangle` on coordinates.
     sp = _orient3d_xyz(ax, ay, az, bx, by, bz, cx, cy, cz, px, py, pz)
