@@ -90,10 +90,11 @@ def point_edge_sq(p, e0, e1):
 def _ee(ea0x, ea0y, ea0z, ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z):
     # edge_edge_sq on scalars: callers inside other kernels pass coordinates, not
     # (3,) views (a view per argument costs a reference count update per call).
-    # Not IR-inlined (inline="always"), unlike _pe: inlined into every row visit of
-    # the broad phase it made a cold compile of per_vertex_separation take 25 -> ~100+
-    # s (Numba deep-copies the IR per call site); LLVM still inlines it, and the folds
-    # measured within noise of the IR-inlined version (2026-12-01, quiet machine).
+    # Not IR-inlined (inline="always"): inlined into every row visit of the broad
+    # phase it made a cold compile of per_vertex_separation take 25 -> ~100+ s (Numba
+    # deep-copies the IR per call site); LLVM still inlines it, and the folds measured
+    # within noise of the IR-inlined version (2026-12-01, quiet machine). The small
+    # scalar helpers (_pp, _pe, the gaps) are ``forceinline=True`` (`broad_phase`).
     best = _pe(ea0x, ea0y, ea0z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z)
     d = _pe(ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z)
     if d < best:
