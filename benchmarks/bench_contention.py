@@ -1,7 +1,8 @@
 """Benchmark: fit_step at 64K vertices with one core held by another process (issue 13).
 
 One process measures, for float32 and float64: ``fit_step`` as dispatched (the
-default), with the serial kernels forced and with the parallel kernels forced, and the
+default: `constants.FIT_BUILD`, "adaptive", `penfree.core.parallel.Pace`), with the serial
+kernels forced and with the parallel kernels forced, and the
 memory floor (one ``np.add(x_prev, x, out=buf)`` pass); first on the machine as it is
 ("idle"), then with a background busy process spinning on one core ("loaded"). Ratios
 are formed within one condition (fit / floor) and across the two (loaded / idle).
@@ -36,13 +37,19 @@ def median_time(fn, repeats):
 def variants(x_prev, x, out, repeats):
     """{name: (median, p90)} for the default dispatch, serial and parallel kernels, and the floor."""
     res = {}
-    default = K.PARALLEL_MIN_VERTICES
-    for name, threshold in (("default", default), ("serial", 1 << 62), ("parallel", 1)):
-        K.PARALLEL_MIN_VERTICES = threshold
+    default = K.FIT_BUILD
+    for build in ("serial", "parallel"):  # first calls (cache loads) before any timing
+        K.FIT_BUILD = build
+        try:
+            penfree.fit_step(x_prev, x, out=out)
+        finally:
+            K.FIT_BUILD = default
+    for name, build in (("default", default), ("serial", "serial"), ("parallel", "parallel")):
+        K.FIT_BUILD = build
         try:
             res[name] = median_time(lambda: penfree.fit_step(x_prev, x, out=out), repeats)
         finally:
-            K.PARALLEL_MIN_VERTICES = default
+            K.FIT_BUILD = default
     buf = np.empty_like(x)
     res["floor"] = median_time(lambda: np.add(x_prev, x, out=buf), repeats)
     return res
@@ -62,7 +69,7 @@ def main(argv=None):
     ap.add_argument("--busy", type=int, default=1, help="background busy processes in the loaded run")
     args = ap.parse_args(argv)
     print(f"penfree {penfree.__version__}, numba {numba.__version__} (threads {numba.get_num_threads()}), N = {args.vertices}, median of {args.repeats}; "
-          f"PARALLEL_MIN_VERTICES = {K.PARALLEL_MIN_VERTICES}")
+          f"PARALLEL_MIN_VERTICES = {K.PARALLEL_MIN_VERTICES}, FIT_BUILD = {K.FIT_BUILD}")
     x_prev64, x64, source = reference_or_own("rods", args.vertices)
     rows = []
     for dtype in (np.float32, np.float64):

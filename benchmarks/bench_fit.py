@@ -150,9 +150,11 @@ def main(argv=None):
             m = fit_moments(x_prev, x)
             t_fit = median_time(lambda: penfree.fit_step(x_prev, x, out=out), args.repeats)
             t_fast = median_time(lambda: penfree.fit_step(x_prev, x, out=out, evaluate=False), args.repeats)
-            par_min, K.PARALLEL_MIN_VERTICES = K.PARALLEL_MIN_VERTICES, 1 << 62  # serial kernels
-            t_ser = median_time(lambda: penfree.fit_step(x_prev, x, out=out), args.repeats)
-            K.PARALLEL_MIN_VERTICES = par_min
+            build, K.FIT_BUILD = K.FIT_BUILD, "serial"  # serial kernels
+            try:
+                t_ser = median_time(lambda: penfree.fit_step(x_prev, x, out=out), args.repeats)
+            finally:
+                K.FIT_BUILD = build
             t_mom = median_time(lambda: fit_moments(x_prev, x, validate=False), args.repeats)
             t_app = median_time(lambda: apply_map(x, r.D, r.u, r.c, out=out, x_prev=x_prev), args.repeats)
             t_ls = median_time(lambda: lstsq_step(x_prev, x), max(5, args.repeats // 3))

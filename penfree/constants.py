@@ -42,14 +42,19 @@ FIT_PRECISION_FACTOR = 16.0
 #: so models that are equal up to rounding count as equal.
 AUTO_MODEL_ATOL_REL = 1e-6
 
-#: Fit kernels run their fixed chunks in parallel only from this many vertices
-#: on (same chunks, same summation order, so the same bits). A serial pass costs
-#: ~2.2 ns per vertex (0.14 ms at 64K); a parallel region saves a third of that
-#: on an idle machine but, with a core held by another process, waits for a late
-#: thread: mean fit_step at 64K 1-15 ms parallel vs 0.4-0.8 ms serial
-#: (benchmarks/bench_contention.py). Sub-millisecond regions therefore stay
-#: serial: parallel from ~1 ms of serial work on.
-PARALLEL_MIN_VERTICES = 1 << 19
+#: Fit kernels (moments, applying the map, auto's predictor) may run their fixed
+#: chunks in parallel from this many vertices on (same chunks, same summation order,
+#: so the same bits); below it they run serially. Above it `FIT_BUILD` decides.
+#: A parallel region saves a third to a half of a 64K pass on an idle machine, but
+#: with a core held by another process it waits for a late thread: mean fit_step at
+#: 64K 1-15 ms parallel vs 0.4-0.8 ms serial (benchmarks/bench_contention.py).
+PARALLEL_MIN_VERTICES = 1 << 14
+
+#: Which build of the fit kernels runs from `PARALLEL_MIN_VERTICES` on: "adaptive"
+#: (`penfree.core.parallel.Pace`: the one that has cost less per vertex lately, the
+#: other tried every 32nd call), "serial" or "parallel" (forced: the tests' oracles
+#: and the benchmarks' columns; "parallel" also below the threshold).
+FIT_BUILD = "adaptive"
 
 # --- projection and certificate (SPEC section 5) -----------------------------
 #: Upper clamp of singular values in the ``svd`` projection (the original

@@ -16,10 +16,16 @@ measured 1.1-3.8x slower (the broad phase's distance folds, 64K scenes, one thre
 issue 13); running the parallel build on one thread costs ~3 us more per call
 (2.45 GHz Zen 3: 3.5 us against 0.5 us for a 100-item loop).
 The serial build stays as the tests' oracle of the same bits.
+
+The fit's passes (`penfree.core.fit.kernels`) are short (0.1-0.6 ms at 64K vertices)
+and read every vertex once: there a parallel region pays on an idle machine and
+stalls on a loaded one, and no size threshold is right for both. `Pace` chooses
+between their two builds from the measured cost of each instead.
 """
 
 from __future__ import annotations
 
+import time
 import types
 
 import numba
@@ -124,3 +130,102 @@ def parallel_kernel(fn, name, min_work=PARALLEL_MIN_WORK, **jit_options):
         ``kernel(work, *args)``.
     """
     return _Dual(fn, name, min_work, jit_options)
+
+
+class Pace:
+    """Serial or parallel build of one kernel, whichever costs less per item lately.
+
+    The serial build's cost per work item is an exponential moving average (weight
+    `ALPHA`) of its calls' wall times. The parallel build's is a mixture: its usual
+    cost (the same average over calls that did not stall) and its stalls' (calls
+    above `STALL_FACTOR` times the usual: a late thread), weighted by how often it
+    stalled lately (an average of 0 / 1, weight `STALL_WEIGHT` a call). Where another
+    process holds one of two cores, a parallel call stalls for a scheduler time slice
+    (~20 ms, 100x its usual cost, issue 13) now and then: its median stays 1.6x below
+    the serial build's while its mean is above it. The cheaper build runs; the other
+    one every `PROBE_EVERY` calls times the ratio of their costs (at most
+    `PROBE_SPREAD`: a probe of a build that stalls may cost a stall), and a probe,
+    standing for the calls since the last, weighs `PROBE_WEIGHT` in the stall share.
+    So two stalled calls move the choice to serial, and two or three calm probes in a
+    row back (a few hundred calls). The first call of each build is not measured (thread
+    start-up, the cache load). Both builds give the same bits, so the choice changes
+    only the time; ``build`` forces one (``"serial"`` or ``"parallel"``, for the
+    tests' oracles and the benchmarks).
+
+    Examples
+    --------
+    >>> pace = Pace()
+    >>> pace.run(1 << 20, "adaptive", len, len, "abc")  # (work, build, serial, parallel, *args)
+    3
+    """
+
+    PROBE_EVERY = 32
+    PROBE_SPREAD = 16.0
+    ALPHA = 0.25
+    STALL_WEIGHT = 1.0 / 8.0
+    PROBE_WEIGHT = 0.5
+    STALL_FACTOR = 4.0
+
+    def __init__(self):
+        self.serial = None  # seconds per item
+        self.usual = None  # parallel, calls that did not stall
+        self.slow = 0.0  # parallel, calls that stalled
+        self.stalls = 0.0  # recent share of parallel calls that stalled
+        self.seen = [False, False]
+        self.calls = 0
+        self.since = 0  # calls since the last probe
+        self.probing = False
+
+    def parallel_cost(self) -> float:
+        """The parallel build's expected cost per item (stalls included)."""
+        return (1.0 - self.stalls) * self.usual + self.stalls * self.slow
+
+    def pick(self) -> bool:
+        """True to run the parallel build next (both are measured before any choice)."""
+        self.calls += 1
+        self.probing = False
+        if self.usual is None:
+            return True
+        if self.serial is None:
+            return False
+        par, ser = self.parallel_cost(), self.serial
+        best = par <= ser
+        # Probe the other build after PROBE_EVERY calls, times how much dearer it looked
+        # (at most PROBE_SPREAD): a probe of a build that stalls costs a stall.
+        ratio = max(par, ser) / max(min(par, ser), 1e-300)
+        self.since += 1
+        self.probing = self.since >= self.PROBE_EVERY * min(max(ratio, 1.0), self.PROBE_SPREAD)
+        if self.probing:
+            self.since = 0
+        return best != self.probing
+
+    def record(self, parallel: bool, seconds: float, work: int) -> None:
+        b = int(parallel)
+        if not self.seen[b]:
+            self.seen[b] = True
+            return
+        per = seconds / max(work, 1)
+        if not parallel:
+            self.serial = per if self.serial is None else self.serial + self.ALPHA * (per - self.serial)
+        elif self.usual is None:
+            self.usual = per
+        else:
+            stalled = per > self.STALL_FACTOR * self.usual
+            if stalled:
+                self.slow = per if self.slow == 0.0 else self.slow + self.ALPHA * (per - self.slow)
+            else:
+                self.usual += self.ALPHA * (per - self.usual)
+            # A probe stands for the many calls since the last one: it weighs more.
+            weight = self.PROBE_WEIGHT if self.probing else self.STALL_WEIGHT
+            self.stalls += weight * (float(stalled) - self.stalls)
+
+    def run(self, work, build, serial, parallel, *args):
+        """``serial(*args)`` or ``parallel(*args)``: forced by `build`, else by the costs."""
+        if build != "adaptive" or thread_count() == 1:
+            return (parallel if build == "parallel" else serial)(*args)
+        par = self.pick()
+        t = time.perf_counter()
+        try:
+            return (parallel if par else serial)(*args)
+        finally:
+            self.record(par, time.perf_counter() - t, work)

@@ -17,7 +17,8 @@ import numpy as np
 from numba import njit, prange
 
 from ... import constants as K
-from ..parallel import named
+from ..parallel import Pace, named
+from .kernels import fit_build
 
 
 def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, unbounded, r, n_chunks):
@@ -86,6 +87,7 @@ def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, un
 
 _predict_serial = njit(cache=True, error_model="numpy")(named(_predict_py, "_predict_serial"))
 _predict_parallel = njit(cache=True, parallel=True, error_model="numpy")(named(_predict_py, "_predict_parallel"))
+_PREDICT_PACE = Pace()
 
 
 def predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r, unbounded=True):
@@ -98,11 +100,10 @@ def predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r, unb
     The chunks are fixed (`REDUCTION_CHUNKS`) and the sums are integers, so the result
     does not depend on the thread count.
     """
-    big = x.shape[0] >= K.PARALLEL_MIN_VERTICES
     out32 = x.dtype == np.float32
-    res = (_predict_parallel if big else _predict_serial)(
-        x_prev.reshape(-1), x.reshape(-1), D, u, c, d_start, s, r_q, thickness, gamma, out32,
-        bool(unbounded), r, K.REDUCTION_CHUNKS)
+    res = fit_build(x.shape[0], _PREDICT_PACE, _predict_serial, _predict_parallel,
+                    x_prev.reshape(-1), x.reshape(-1), D, u, c, d_start, s, r_q, thickness, gamma, out32,
+                    bool(unbounded), r, K.REDUCTION_CHUNKS)
     return int(res[0]), int(res[1])
 
 

@@ -75,11 +75,13 @@ def fast_margin_bound(A) -> float:
 
 _I3 = np.eye(3)
 _EPS = float(np.finfo(np.float64).eps)
+#: The fast bound's rounding allowance per unit of ``1 + ||sym D||_F``.
+FAST_BOUND_ALLOWANCE = K.FAST_CERT_ROUNDING_C * _EPS
 
 
 def _fast_bound(A: np.ndarray) -> float:
     """`fast_margin_bound` without argument checks, for (3, 3) float64 `A`."""
-    return float(_fast_bound_kernel(A, K.FAST_CERT_ROUNDING_C * _EPS))
+    return float(_fast_bound_kernel(A, FAST_BOUND_ALLOWANCE))
 
 
 @njit(cache=True)

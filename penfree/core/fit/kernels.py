@@ -14,7 +14,8 @@ import numpy as np
 from numba import njit, prange
 
 from ... import constants as K
-from ..parallel import named
+from ..parallel import Pace, named
+from .certificate import _fast_bound_kernel
 
 #: Layout of the moment vector the kernel returns (offsets into it).
 _W, _SP, _SD, _SPP, _SDP, _SDD, _SW2, _NMOM = 0, 1, 4, 7, 13, 22, 23, 24
@@ -120,9 +121,21 @@ _moments_parallel = njit(cache=True, parallel=True, fastmath=_FIT_FASTMATH)(
     named(_moments_py, "_moments_parallel"))
 
 
+def fit_build(n, pace, serial, parallel, *args):
+    """Run one of a fit kernel's two builds on `n` vertices: the serial one below
+    ``K.PARALLEL_MIN_VERTICES``, else as ``K.FIT_BUILD`` and `pace` choose."""
+    build = K.FIT_BUILD
+    if build == "adaptive" and n < K.PARALLEL_MIN_VERTICES:
+        build = "serial"
+    return pace.run(n, build, serial, parallel, *args)
+
+
+_MOMENTS_PACE = Pace()
+
+
 def _moments_kernel(x_prev, x, w, n_chunks):
-    big = x.shape[0] >= K.PARALLEL_MIN_VERTICES
-    return (_moments_parallel if big else _moments_serial)(x_prev.reshape(-1), x.reshape(-1), w, n_chunks)
+    return fit_build(x.shape[0], _MOMENTS_PACE, _moments_serial, _moments_parallel,
+                     x_prev.reshape(-1), x.reshape(-1), w, n_chunks)
 
 
 @njit(cache=True)
@@ -152,6 +165,15 @@ def _finish_kernel(tot, use_w, n):
     f[26] = W * W / tot[_SW2] if use_w else float(n)
     f[27] = max(abs(f[1]), abs(f[2]), abs(f[3])) + np.sqrt(max(tr, 0.0) / W)
     return f
+
+
+@njit(cache=True)
+def _offset_kernel(D, u, c):
+    # b = u - D c, so that x + D (x - c) + u = (I + D) x + b (summed in a fixed order).
+    b = np.empty(3)
+    for a in range(3):
+        b[a] = u[a] - (D[a, 0] * c[0] + D[a, 1] * c[1] + D[a, 2] * c[2])
+    return b
 
 
 #: Relative size of the rounding in the fit's residual sum of squares (1e3 float64 ulps).
@@ -289,8 +311,41 @@ _apply_serial = njit(cache=True, fastmath=_FIT_FASTMATH)(named(_apply_py, "_appl
 _apply_parallel = njit(cache=True, parallel=True, fastmath=_FIT_FASTMATH)(named(_apply_py, "_apply_parallel"))
 
 
+_APPLY_PACE = (Pace(), Pace())  # without and with the residual summaries: different costs
+
+
 def _apply_kernel(x_prev, x, D, u, c, out, evaluate, n_chunks):
-    big = x.shape[0] >= K.PARALLEL_MIN_VERTICES
     out32 = out.dtype == np.float32
-    return (_apply_parallel if big else _apply_serial)(x_prev.reshape(-1), x.reshape(-1), D, u, c, out.reshape(-1),
-                                                       evaluate, out32, n_chunks)
+    return fit_build(x.shape[0], _APPLY_PACE[bool(evaluate)], _apply_serial, _apply_parallel,
+                     x_prev.reshape(-1), x.reshape(-1), D, u, c, out.reshape(-1), evaluate, out32, n_chunks)
+
+
+@njit(cache=True)
+def _affine_step_kernel(tot, use_w, n, input_eps, precision, rtol_floor, tol, allowance):
+    """`fit_step`'s default call (affine model, projection ``auto`` or ``none``) after the
+    moment pass, in one call: the same kernels, in the same order, as `fit_moments`,
+    `fit_affine`, the fast certificate of ``A = I + D`` and `residual_gain`.
+
+    Returns ``(f, D, A, fast_bound, rank, gain, b, finite)``: `f` the finished moments
+    (`_finish_kernel`), ``D = A - I`` as rounded through `A`, and whether the moment
+    sums were finite (else the rest is meaningless: `fit_moments` names the input).
+    """
+    f = _finish_kernel(tot, use_w, n)
+    finite = True
+    for k in range(tot.shape[0]):
+        finite = finite and np.isfinite(tot[k])
+    C = f[7:16].reshape((3, 3))
+    G = f[16:25].reshape((3, 3))
+    s = precision * input_eps * f[27]
+    lam, E, keep = _subspace_kernel(C, G, f[25], f[26], s * s * f[0], rtol_floor, tol)
+    D0 = _slopes_kernel(G, E, lam, keep)
+    A = np.empty((3, 3))
+    D = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            A[a, b] = (1.0 if a == b else 0.0) + D0[a, b]
+            D[a, b] = A[a, b] - (1.0 if a == b else 0.0)
+    rank = 0
+    for k in range(3):
+        rank += keep[k]
+    return f, D, A, _fast_bound_kernel(A, allowance), rank, _gain_kernel(D, C, G), _offset_kernel(D, f[4:7], f[1:4]), finite

@@ -14,7 +14,9 @@ import numpy as np
 
 from ... import constants as K
 from ...errors import InputError
-from .kernels import _apply_kernel, _finish_kernel, _gain_kernel, _moments_kernel, _slopes_kernel, _subspace_kernel
+from .certificate import FAST_BOUND_ALLOWANCE
+from .kernels import (_affine_step_kernel, _apply_kernel, _finish_kernel, _gain_kernel, _moments_kernel, _slopes_kernel,
+                      _subspace_kernel)
 
 
 @dataclass(frozen=True)
@@ -137,17 +139,46 @@ def fit_moments(x_prev, x, weights=None, *, validate: bool = True) -> Moments:
         x = as_positions(x, "x", check_finite=False)
         x_prev = as_positions(x_prev, "x_prev", x.shape[0], check_finite=False)
         weights = as_weights(weights, x.shape[0])
-    use_w = weights is not None
     tot = _moments_kernel(x_prev, x, weights, K.REDUCTION_CHUNKS)
     if not np.isfinite(tot).all():
-        # Any NaN/Inf input poisons the sums; find which input to name it.
-        as_positions(x, "x")
-        as_positions(x_prev, "x_prev")
-        raise InputError("positions must be below ~1e150 in magnitude; got sums that overflow float64")
-    f = _finish_kernel(tot, use_w, x.shape[0])
-    eps = max(np.finfo(x.dtype).eps, np.finfo(x_prev.dtype).eps)
+        _non_finite(x_prev, x)
+    return _as_moments(_finish_kernel(tot, weights is not None, x.shape[0]), x_prev, x)
+
+
+def _non_finite(x_prev, x):
+    # Any NaN/Inf input poisons the moment sums; find which input to name it.
+    as_positions(x, "x")
+    as_positions(x_prev, "x_prev")
+    raise InputError("positions must be below ~1e150 in magnitude; got sums that overflow float64")
+
+
+def input_eps(x_prev, x) -> float:
+    """Machine epsilon of the coarser of the two inputs' dtypes (float32 or float64)."""
+    return float(max(np.finfo(x.dtype).eps, np.finfo(x_prev.dtype).eps))
+
+
+def _as_moments(f, x_prev, x) -> Moments:
+    """`Moments` from `_finish_kernel`'s vector `f`."""
     return Moments(f[0], f[1:4], f[4:7], f[7:16].reshape(3, 3), f[16:25].reshape(3, 3), f[25],
-                   x.shape[0], f[26], f[27], float(eps))
+                   x.shape[0], f[26], f[27], input_eps(x_prev, x))
+
+
+def fit_affine_fast(x_prev, x, weights):
+    """The affine fit and the fast certificate of its map, for `fit_step`'s default call.
+
+    One moment pass and one small kernel (`kernels._affine_step_kernel`): the same
+    values, bit for bit, as `fit_moments`, `fit_affine`, ``A = I + D`` (and ``D = A - I``
+    back), `fast_margin_bound(A)` and `residual_gain`, without their Python calls.
+    Inputs as validated by `fit_step`. Returns ``(m, D, A, fast_bound, rank, gain, b)``;
+    raises like `fit_moments` on non-finite input.
+    """
+    tot = _moments_kernel(x_prev, x, weights, K.REDUCTION_CHUNKS)
+    f, D, A, fb, rank, gain, b, finite = _affine_step_kernel(
+        tot, weights is not None, x.shape[0], input_eps(x_prev, x), K.FIT_PRECISION_FACTOR,
+        K.PINV_RTOL_FLOOR, K.FIT_NOISE_SLOPE_TOL, FAST_BOUND_ALLOWANCE)
+    if not finite:
+        _non_finite(x_prev, x)
+    return _as_moments(f, x_prev, x), D, A, float(fb), int(rank), float(gain), b
 
 
 # --- rank: the noise-aware cut-off -------------------------------------------
@@ -204,7 +235,8 @@ def significant_subspace(m: Moments, slope_tol: float | None = None):
 def _subspace(m: Moments, slope_tol):
     """`significant_subspace` as ``(lam (3,), E (3, 3), keep (3,) bool)``, all three directions."""
     tol = K.FIT_NOISE_SLOPE_TOL if slope_tol is None else float(slope_tol)
-    floor = (K.FIT_PRECISION_FACTOR * m.input_eps * m.coord_scale) ** 2 * m.W
+    s = K.FIT_PRECISION_FACTOR * m.input_eps * m.coord_scale
+    floor = s * s * m.W  # as `kernels._affine_step_kernel` forms it
     return _subspace_kernel(m.C, m.G, m.qq, m.n_eff, floor, K.PINV_RTOL_FLOOR, tol)
 
 
@@ -364,7 +396,19 @@ def fit_model(m: Moments, model: str = "affine", slope_tol=None):
 # --- applying the map ----------------------------------------------------------
 
 
-def apply_map(x, D, u, c, out=None, x_prev=None):
+def check_out(x, out):
+    """`out` for `x`'s deformed positions: a new array when None, else checked (C-contiguous,
+    x's shape and dtype, not sharing memory with `x`)."""
+    if out is None:
+        return np.empty_like(x)
+    if out.shape != x.shape or out.dtype != x.dtype or not out.flags.c_contiguous:
+        raise InputError(f"out must be C-contiguous {x.shape} {x.dtype}; got {out.shape} {out.dtype}")
+    if np.shares_memory(out, x):
+        raise InputError("out must not share memory with x")
+    return out
+
+
+def apply_map(x, D, u, c, out=None, x_prev=None, *, checked=False):
     """Write ``x_def = x + D (x - c) + u`` (centred form, float64 arithmetic).
 
     Parameters
@@ -377,6 +421,9 @@ def apply_map(x, D, u, c, out=None, x_prev=None):
     x_prev : (N, 3) or None
         When given, also returns unweighted residual summaries against
         ``x_pred = 2 x - x_prev``.
+    checked : bool
+        The caller (`fit_step`) has made `x`, `x_prev` C-contiguous, `D`, `u`, `c`
+        C-contiguous float64, and `out` an array `check_out` accepts.
 
     Returns
     -------
@@ -393,18 +440,16 @@ def apply_map(x, D, u, c, out=None, x_prev=None):
     >>> out[0].tolist()
     [1.0, 1.0, 1.0]
     """
-    x = np.ascontiguousarray(x)
-    if out is None:
-        out = np.empty_like(x)
-    elif out.shape != x.shape or out.dtype != x.dtype or not out.flags.c_contiguous:
-        raise InputError(f"out must be C-contiguous {x.shape} {x.dtype}; got {out.shape} {out.dtype}")
-    if np.shares_memory(out, x):
-        raise InputError("out must not share memory with x")
-    D = np.ascontiguousarray(D, dtype=np.float64)
-    u = np.ascontiguousarray(u, dtype=np.float64)
-    c = np.ascontiguousarray(c, dtype=np.float64)
+    if not checked:
+        x = np.ascontiguousarray(x)
+        out = check_out(x, out)
+        D = np.ascontiguousarray(D, dtype=np.float64)
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        c = np.ascontiguousarray(c, dtype=np.float64)
+        if x_prev is not None:
+            x_prev = np.ascontiguousarray(x_prev)
     evaluate = x_prev is not None
-    xp = np.ascontiguousarray(x_prev) if evaluate else x
+    xp = x_prev if evaluate else x
     res = _apply_kernel(xp, x, D, u, c, out, evaluate, K.REDUCTION_CHUNKS)
     if not evaluate:
         return out, None

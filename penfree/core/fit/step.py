@@ -15,6 +15,7 @@ from ... import constants as K
 from ...errors import CertificateError, InputError
 from . import models as _fit
 from .certificate import certified_margin, certify_map, fast_margin_bound
+from .kernels import _offset_kernel
 from .projection import project
 
 
@@ -168,7 +169,39 @@ def fit_step(x_prev, x, *, weights=None, model="affine", projection="auto", marg
         raise InputError(f"margin must be in [0, 1); got {margin!r}")
     margin = margin_f
 
-    m = _fit.fit_moments(x_prev, x, w, validate=False)
+    out = _fit.check_out(x, out)
+    used = None
+    if model == "affine" and projection in ("auto", "none"):
+        # The default call, in one kernel call after the moments; when the fast test
+        # certifies the map and it is no farther from x_pred than the translation, this
+        # is what `_fit_general` gives, bit for bit.
+        m, D, A, bound, rank, gain, b = _fit.fit_affine_fast(x_prev, x, w)
+        if bound > margin and not gain > 0.0 and certify_map(A, margin):  # the one gate, as always
+            used = fitted = "affine"
+            u, mode, fallback, how = m.u.copy(), "none", "", "fast"
+    else:
+        m = _fit.fit_moments(x_prev, x, w, validate=False)
+    if used is None:
+        used, mode, A, D, u, bound, how, rank, fallback, fitted = _fit_general(m, model, projection, margin)
+        D, u = np.ascontiguousarray(D, dtype=np.float64), np.ascontiguousarray(u, dtype=np.float64)
+        b = _offset_kernel(D, u, m.c)
+
+    x_def, stats = _fit.apply_map(x, D, u, m.c, out=out, x_prev=x_prev if evaluate else None, checked=True)
+    if stats is None:
+        stats = dict.fromkeys(("residual_pred_rms", "residual_pred_max", "baseline_pred_rms",
+                               "baseline_pred_max"), math.nan)
+    return StepResult(
+        A=A, b=b, x_def=x_def, D=D, u=u, c=m.c.copy(), model=used, projection=mode,
+        certificate_margin=float(bound), rank=int(rank), **stats,
+        time_fit_s=time.perf_counter() - t0, model_fitted=fitted, fallback=fallback,
+        certified_by=how,
+    )
+
+
+def _fit_general(m, model, projection, margin):
+    """Any model and projection from the moments `m`: fit, project when asked or when the
+    map is not certified, certify, fall back to the translation. Returns ``(used, mode,
+    A, D, u, bound, how, rank, fallback, fitted)``."""
     fitted, D, u, rank = _fit.fit_model(m, model)
     used, fallback, how = fitted, "", "fast"
     if fitted == "translation":
@@ -192,15 +225,4 @@ def fit_step(x_prev, x, *, weights=None, model="affine", projection="auto", marg
         _, _, bound, how = _certify_A(D, margin)  # D = 0 is certified for every margin < 1
         if math.isnan(bound):
             raise CertificateError(f"the identity map failed the certificate for margin {margin!r}")
-
-    x_def, stats = _fit.apply_map(x, D, u, m.c, out=out, x_prev=x_prev if evaluate else None)
-    if stats is None:
-        stats = dict.fromkeys(("residual_pred_rms", "residual_pred_max", "baseline_pred_rms",
-                               "baseline_pred_max"), math.nan)
-    b = u - D @ m.c  # x + D (x - c) + u = (I + D) x + (u - D c)
-    return StepResult(
-        A=A, b=b, x_def=x_def, D=D, u=u, c=m.c.copy(), model=used, projection=mode,
-        certificate_margin=float(bound), rank=int(rank), **stats,
-        time_fit_s=time.perf_counter() - t0, model_fitted=fitted, fallback=fallback,
-        certified_by=how,
-    )
+    return used, mode, A, D, u, bound, how, rank, fallback, fitted

@@ -279,7 +279,7 @@ def test_all_blocked_prediction():
 def test_select_step_deterministic_across_thread_counts(monkeypatch):
     from penfree import constants
 
-    monkeypatch.setattr(constants, "PARALLEL_MIN_VERTICES", 0)  # force the parallel kernels
+    monkeypatch.setattr(constants, "FIT_BUILD", "parallel")  # force the parallel kernels
     x_prev, x, d, r_q = _scene_step("cloth", np.float32, 0.0, seed=14)
     old = numba.get_num_threads()
     try:

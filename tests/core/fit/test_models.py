@@ -328,11 +328,11 @@ def test_deterministic_across_thread_counts_and_builds(rng, monkeypatch, weighte
     old = numba.get_num_threads()
     runs = []
     try:
-        monkeypatch.setattr(F.K, "PARALLEL_MIN_VERTICES", 0)
+        monkeypatch.setattr(F.K, "FIT_BUILD", "parallel")
         for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
             numba.set_num_threads(threads)
             runs.append(_run(x_prev, x, w))
-        monkeypatch.setattr(F.K, "PARALLEL_MIN_VERTICES", 10**9)
+        monkeypatch.setattr(F.K, "FIT_BUILD", "serial")
         runs.append(_run(x_prev, x, w))
     finally:
         numba.set_num_threads(old)
@@ -369,7 +369,7 @@ def test_relabelling_invariance_and_rotation_equivariance(seed, model):
 def test_apply_map_residuals_against_numpy(rng, monkeypatch, dtype, build):
     # The residual summaries (maxima taken on the bit patterns) against numpy on the
     # stored x_def, including vertices that do not move (residual exactly 0).
-    monkeypatch.setattr(F.K, "PARALLEL_MIN_VERTICES", 0 if build == "parallel" else 10**9)
+    monkeypatch.setattr(F.K, "FIT_BUILD", build)
     x = (rng.standard_normal((3001, 3)) + 50.0).astype(dtype)
     x_prev = (x - 1e-2 * rng.standard_normal((3001, 3))).astype(dtype)
     x_prev[:7] = x[:7]
@@ -391,7 +391,7 @@ def test_apply_map_residuals_against_numpy(rng, monkeypatch, dtype, build):
 @pytest.mark.parametrize("build", ["serial", "parallel"])
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf], ids=["nan", "inf", "-inf"])
 def test_apply_map_nonfinite_poisons_the_summaries(rng, monkeypatch, bad, build):
-    monkeypatch.setattr(F.K, "PARALLEL_MIN_VERTICES", 0 if build == "parallel" else 10**9)
+    monkeypatch.setattr(F.K, "FIT_BUILD", build)
     x = rng.standard_normal((500, 3))
     x_prev = x - 1e-2
     x_prev[123, 1] = bad

@@ -177,7 +177,7 @@ def test_guarantees_on_arbitrary_data(seed, n, scale, margin, model, projection)
 def test_deterministic_across_thread_counts(rng, monkeypatch):
     from penfree import constants
 
-    monkeypatch.setattr(constants, "PARALLEL_MIN_VERTICES", 0)  # force the parallel kernels
+    monkeypatch.setattr(constants, "FIT_BUILD", "parallel")  # force the parallel kernels
     x = rng.standard_normal((3000, 3)).astype(np.float32)
     x_prev = prev_for(x.astype(np.float64), rot([1, 2, 3], 2), np.array([0.0, 0.0, 0.01])).astype(np.float32)
     old = numba.get_num_threads()
@@ -233,3 +233,47 @@ def test_two_frame_sequence(rng):
     r = fit_step(positions[0], positions[1])
     check_result(r, positions[0], positions[1], 0.0)
     assert r.rank == 3 and r.residual_pred_max < r.baseline_pred_max
+
+
+def _scene(kind, rng, dtype):
+    n = {"single": 1, "two": 2}.get(kind, 400)
+    x = rng.standard_normal((n, 3))
+    if kind == "collinear":
+        x = np.outer(rng.standard_normal(n), rng.standard_normal(3))
+    elif kind == "planar":
+        x[:, 2] = 0.5 * x[:, 0] - x[:, 1]
+    elif kind == "far":
+        x += 1e4
+    ang = {"half-turn": 178.0, "reflection": 0.0}.get(kind, 4.0)
+    A = rot(rng.standard_normal(3), ang) @ (np.eye(3) + 0.02 * rng.standard_normal((3, 3)))
+    if kind == "reflection":
+        A = np.diag([1.0, 1.0, -0.2])
+    x_prev = prev_for(x, A, 0.01 * rng.standard_normal(3))
+    if kind == "noise":
+        x_prev += 0.5 * rng.standard_normal((n, 3))  # the map fits worse than the translation
+    return x_prev.astype(dtype), x.astype(dtype)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
+@pytest.mark.parametrize("kind", ["generic", "collinear", "planar", "single", "two", "far", "half-turn",
+                                  "reflection", "noise"])
+def test_the_default_call_gives_the_general_paths_bits(kind, dtype):
+    # fit_step's default call (affine, projection auto or none) takes a one-kernel path
+    # (models.fit_affine_fast) when the fast test certifies the map; whichever path a
+    # scene takes, the result is the general path's (`_fit_general` from `fit_moments`)
+    # bit for bit, also where the map needs projecting or falls back.
+    from penfree.core.fit.kernels import _offset_kernel
+    from penfree.core.fit.step import _fit_general
+
+    rng = np.random.default_rng(7)
+    for margin in (0.0, 0.1, 0.9):
+        for projection in ("auto", "none"):
+            x_prev, x = _scene(kind, rng, dtype)
+            r = fit_step(x_prev, x, margin=margin, projection=projection)
+            m = fit_moments(x_prev, x)
+            used, mode, A, D, u, bound, how, rank, fallback, fitted = _fit_general(m, "affine", projection, margin)
+            assert (r.model, r.projection, r.certified_by, r.rank, r.fallback, r.model_fitted) == (
+                used, mode, how, rank, fallback, fitted)
+            for a, b in [(r.A, A), (r.D, D), (r.u, u), (r.c, m.c), (r.b, _offset_kernel(np.ascontiguousarray(D), u, m.c))]:
+                assert np.array_equal(a, b)
+            assert r.certificate_margin == bound or np.isnan(r.certificate_margin) and np.isnan(bound)
