@@ -51,8 +51,8 @@ AUTO_MODEL_ATOL_REL = 1e-6
 PARALLEL_MIN_VERTICES = 1 << 14
 
 #: Which build of the fit kernels runs from `PARALLEL_MIN_VERTICES` on: "adaptive"
-#: (`penfree.core.parallel.Pace`: the one that has cost less per vertex lately, the
-#: other tried every 32nd call), "serial" or "parallel" (forced: the tests' oracles
+#: (`penfree.core.parallel.Pace`: the one that has cost less per vertex lately, stalls
+#: included, the other tried now and then), "serial" or "parallel" (forced: the tests' oracles
 #: and the benchmarks' columns; "parallel" also below the threshold).
 FIT_BUILD = "adaptive"
 
