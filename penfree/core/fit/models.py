@@ -142,7 +142,7 @@ def fit_moments(x_prev, x, weights=None, *, validate: bool = True) -> Moments:
     tot = _moments_kernel(x_prev, x, weights, K.REDUCTION_CHUNKS)
     if not np.isfinite(tot).all():
         _non_finite(x_prev, x)
-    return _as_moments(_finish_kernel(tot, weights is not None, x.shape[0]), x_prev, x)
+    return _as_moments(_finish_kernel(tot, weights is not None, x.shape[0]), x.shape[0], input_eps(x_prev, x))
 
 
 def _non_finite(x_prev, x):
@@ -157,10 +157,10 @@ def input_eps(x_prev, x) -> float:
     return float(max(np.finfo(x.dtype).eps, np.finfo(x_prev.dtype).eps))
 
 
-def _as_moments(f, x_prev, x) -> Moments:
-    """`Moments` from `_finish_kernel`'s vector `f`."""
+def _as_moments(f, n, eps) -> Moments:
+    """`Moments` of `n` vertices from `_finish_kernel`'s vector `f` (inputs' epsilon `eps`)."""
     return Moments(f[0], f[1:4], f[4:7], f[7:16].reshape(3, 3), f[16:25].reshape(3, 3), f[25],
-                   x.shape[0], f[26], f[27], input_eps(x_prev, x))
+                   n, f[26], f[27], eps)
 
 
 def fit_affine_fast(x_prev, x, weights):
@@ -173,12 +173,13 @@ def fit_affine_fast(x_prev, x, weights):
     raises like `fit_moments` on non-finite input.
     """
     tot = _moments_kernel(x_prev, x, weights, K.REDUCTION_CHUNKS)
+    eps = input_eps(x_prev, x)
     f, D, A, fb, rank, gain, b, finite = _affine_step_kernel(
-        tot, weights is not None, x.shape[0], input_eps(x_prev, x), K.FIT_PRECISION_FACTOR,
+        tot, weights is not None, x.shape[0], eps, K.FIT_PRECISION_FACTOR,
         K.PINV_RTOL_FLOOR, K.FIT_NOISE_SLOPE_TOL, FAST_BOUND_ALLOWANCE)
     if not finite:
         _non_finite(x_prev, x)
-    return _as_moments(f, x_prev, x), D, A, float(fb), int(rank), float(gain), b
+    return _as_moments(f, x.shape[0], eps), D, A, float(fb), int(rank), float(gain), b
 
 
 # --- rank: the noise-aware cut-off -------------------------------------------
