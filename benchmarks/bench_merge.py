@@ -6,7 +6,11 @@ The frame ranges of FILE are deformed in-process (`--model affine`, thickness 0)
 partial results copied twice, and each merge writes a result; peaks are Python-heap
 peaks (`tracemalloc`, numpy's buffers included); the two results are compared.
 
-    .venv/bin/python benchmarks/bench_merge.py FILE.h5 [--parts 8]
+    .venv/bin/python benchmarks/bench_merge.py FILE.h5 [--parts 8] [--per-vertex]
+
+``--per-vertex`` deforms with the per-vertex residuals (two ``(S, N)`` float32 datasets),
+which the streamed merge writes one range at a time (`partials.PartialRows`) and the
+whole-read merge concatenates.
 
 e.g. FILE from ``samples/generate.py cloth-ref -o /tmp/big/cloth.h5 --vertices 65536 --frames 100``.
 """
@@ -41,8 +45,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("file")
     ap.add_argument("--parts", type=int, default=8, help="frame ranges (plan's target: 2 per worker)")
+    ap.add_argument("--per-vertex", action="store_true", help="with the per-vertex residuals")
     args = ap.parse_args()
-    opts = {"model": "affine", "projection": "auto", "margin": None, "thickness": 0.0, "per_vertex": False,
+    opts = {"model": "affine", "projection": "auto", "margin": None, "thickness": 0.0, "per_vertex": args.per_vertex,
             "frames": None}
     with h5py.File(args.file, "r") as f:
         shape, dtype = f["positions"].shape, f["positions"].dtype
@@ -65,7 +70,10 @@ def main():
             tracemalloc.stop()
             print(f"{name:>10} merge: peak {peak / 2**20:7.1f} MiB, {time.perf_counter() - t0:5.1f} s")
         with h5py.File(outs["whole-read"], "r") as a, h5py.File(outs["streamed"], "r") as b:
-            same = all(np.array_equal(a[k][()], b[k][()]) for k in ("positions", "steps/deformed", "steps/A"))
+            keys = ["positions", "steps/deformed", "steps/A"] + [k for k in ("steps/residual_pred_per_vertex",
+                                                                             "steps/residual_next_per_vertex") if k in a]
+            same = set(a["steps"]) == set(b["steps"]) and all(
+                np.array_equal(a[k][()], b[k][()], equal_nan=True) for k in keys)
         print("results equal" if same else "RESULTS DIFFER")
 
 

@@ -104,6 +104,47 @@ def test_merge_selection_orders_columns_by_first_appearance(tmp_path):
     assert steps["frame"].tolist() == [1, 2, 3, 4]
 
 
+def test_merge_streams_the_per_vertex_rows_one_range_at_a_time(tmp_path):
+    """A streaming merge (`merge_task`'s) holds no ``--per-vertex`` dataset whole: each is a
+    `PartialRows` of the ranges' rows in frame order (shape and dtype from the first
+    range's header), equal to the plain merge's array NaN for NaN, and written as that
+    array is (contiguous, the same values); the driver's summary rows carry none of them
+    (`_light`)."""
+    from penfree.formats.partials import PartialFrames, PartialRows
+    from penfree.formats.result import _write_array
+    from penfree.scaleout.deform import _light
+
+    rng = np.random.default_rng(3)
+    N, parts, counts = 5, [], (3, 1, 2)
+    for k, S in enumerate(counts):
+        p = tmp_path / f"part-{k}.npz"
+        nxt = rng.random((S, N)).astype(np.float32)
+        if k == len(counts) - 1:
+            nxt[-1] = np.nan  # the last step has no next frame
+        np.savez(p, **{"steps/frame": np.arange(S) + 1 + sum(counts[:k]),
+                       "steps/deformed": rng.random((S, N, 3)),
+                       "steps/residual_pred_per_vertex": rng.random((S, N)).astype(np.float32),
+                       "steps/residual_next_per_vertex": nxt,
+                       "steps/residual_pred_rms": rng.random(S)})
+        parts.append(p)
+    plain, _ = merge_partials(parts)
+    steps, _ = merge_partials(parts, stream=True)
+    assert isinstance(steps["deformed"], PartialFrames)
+    np.testing.assert_array_equal(steps["residual_pred_rms"], plain["residual_pred_rms"])
+    for key in ("residual_pred_per_vertex", "residual_next_per_vertex"):
+        rows = steps[key]
+        assert isinstance(rows, PartialRows) and rows.shape == (6, N) and rows.dtype == np.float32
+        blocks = list(rows.blocks())
+        assert [len(b) for b in blocks] == list(counts)
+        np.testing.assert_array_equal(np.concatenate(blocks), plain[key])
+        with h5py.File(tmp_path / f"{key}.h5", "w") as f:
+            _write_array(f, key, rows)
+            _write_array(f, "plain", plain[key])
+            assert f[key].chunks is None and f[key].compression is None and f[key].dtype == np.float32
+            np.testing.assert_array_equal(f[key][()], f["plain"][()])
+    assert set(_light(steps)) == {"frame", "residual_pred_rms"}
+
+
 @pytest.mark.parametrize("extra", [["--model", "auto", "--stats"], ["--model", "affine", "--frames", "3:40"]])
 def test_deform_many_equals_serial(inputs, tmp_path, scheduler, extra):
     runner = CliRunner()
@@ -388,7 +429,8 @@ def _spy_windows(monkeypatch):
     return windows
 
 
-@pytest.mark.parametrize("extra", [[], ["--frames", "3:11", "--stats"]], ids=["all", "frames-stats"])
+@pytest.mark.parametrize("extra", [[], ["--frames", "3:11", "--stats"], ["--per-vertex"]],
+                         ids=["all", "frames-stats", "per-vertex"])
 def test_serial_deform_of_a_long_file_goes_in_ranges_without_dask(tmp_path, monkeypatch, extra):
     """A serial ``deform`` of a file whose frames exceed `MAX_TASK_BYTES` runs its frame
     ranges one after another in this process (`cluster.InProcess`, no Dask), each reading

@@ -4,7 +4,8 @@
 result holds the input's positions and every step's deformed state, each as large as
 the recording. The merge hands the writers (`hdf5.write_positions`, `result.write_result`)
 a `Frames` in their place: the writer asks for one frame after another, and only that
-frame (and, for the partial results, one range's deformed states) is in memory.
+frame (and, for the partial results, one range's deformed states) is in memory. The
+``--per-vertex`` residuals (``(S, N)`` per dataset) go the same way as `StepRows`.
 """
 
 from __future__ import annotations
@@ -87,3 +88,20 @@ class StoredFrames(Frames):
             self._first = t - t % self._step
             self._block = self._ds[self._first:self._first + self._step]
         return self._block[t - self._first]
+
+
+class StepRows:
+    """A read-once ``(S, ...)`` per-step array that `result.write_result` writes block by
+    block: ``shape``, ``dtype`` and `blocks` (consecutive row blocks, in order). Unlike
+    `Frames`, values are not checked (a ``--per-vertex`` residual to the next frame is NaN
+    where there is none)."""
+
+    def __init__(self, shape, dtype):
+        self.shape, self.dtype = tuple(int(s) for s in shape), np.dtype(dtype)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def blocks(self):
+        """Iterator over ``(rows, ...)`` arrays whose concatenation is the whole array."""
+        raise NotImplementedError

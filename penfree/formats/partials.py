@@ -9,9 +9,15 @@ import os
 
 import numpy as np
 
-from .frames import Frames
+from .frames import Frames, StepRows
 
 _DEFORMED = "steps/deformed"
+
+
+def _streamed(key) -> bool:
+    """A dataset that `merge_partials` streams: the deformed states and the per-vertex rows
+    (``--per-vertex`` residuals, ``(S, N)``), each as large as the recording or close."""
+    return key == _DEFORMED or (key.startswith("steps/") and key.endswith("_per_vertex"))
 
 
 def _flatten(prefix, d, out):
@@ -51,20 +57,26 @@ def write_partial(parts, steps, groups) -> str:
     return name
 
 
-def merge_partials(parts, stream_deformed=False) -> tuple:
+def merge_partials(parts, stream=False) -> tuple:
     """``(steps, groups)`` of a serial run from partial results in frame order.
 
-    `stream_deformed`: ``steps["deformed"]`` is a `PartialFrames` (one partial's states in
-    memory at a time, for `result.write_result`) instead of one array of every step.
+    `stream`: ``steps["deformed"]`` is a `PartialFrames` and each per-vertex dataset
+    (``steps/*_per_vertex``) a `PartialRows` (one partial's rows in memory at a time, for
+    `result.write_result`) instead of one array of every step.
     """
-    loaded = []
-    skip = _DEFORMED if stream_deformed else None
+    loaded, names = [], []
     for p in parts:
         with np.load(p, allow_pickle=False) as z:
-            loaded.append(_unflatten({k: z[k] for k in z.files if k != skip}))
+            names = z.files
+            loaded.append(_unflatten({k: z[k] for k in z.files if not (stream and _streamed(k))}))
     steps = {k: np.concatenate([d["steps"][k] for d in loaded]) for k in loaded[0]["steps"]}
-    if stream_deformed:
-        steps["deformed"] = PartialFrames(parts, [len(d["steps"]["frame"]) for d in loaded])
+    if stream:
+        counts = [len(d["steps"]["frame"]) for d in loaded]
+        for key in names:  # every range of a run holds the same datasets
+            if key == _DEFORMED:
+                steps["deformed"] = PartialFrames(parts, counts)
+            elif _streamed(key):
+                steps[key[len("steps/"):]] = PartialRows(parts, counts, key)
     groups = {}
     for g in loaded[0].get("groups", {}):
         tables = [d["groups"][g] for d in loaded]
@@ -91,6 +103,24 @@ class PartialFrames(Frames):
     def _read(self, t):
         i = int(np.searchsorted(self._ends, t, side="right"))
         return self._load(i)[t - (int(self._ends[i - 1]) if i else 0)]
+
+
+class PartialRows(StepRows):
+    """Dataset `key` of partial results (per-step rows, `counts` of them in each), in frame
+    order; one partial's rows in memory at a time."""
+
+    def __init__(self, parts, counts, key):
+        self._parts, self._key = list(parts), key
+        with np.load(self._parts[0], allow_pickle=False) as z, z.zip.open(f"{key}.npy") as f:
+            version = np.lib.format.read_magic(f)  # the member's header, not its data
+            header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, _, dtype = header(f)
+        super().__init__((int(sum(counts)),) + tuple(shape[1:]), dtype)
+
+    def blocks(self):
+        for p in self._parts:
+            with np.load(p, allow_pickle=False) as z:
+                yield z[self._key]
 
 
 def _merge_group(tables):

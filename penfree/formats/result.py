@@ -35,7 +35,7 @@ from ..constants import FORMAT_VERSION
 from ..errors import FormatError, InputError
 from ..sequence import Sequence
 from .atomic import atomic_file
-from .frames import Frames
+from .frames import Frames, StepRows
 from .hdf5 import (frame_window, has_h5_magic, open_h5, read_attrs, read_from_h5, write_attrs, write_positions,
                    write_to_h5)
 
@@ -100,6 +100,13 @@ def _write_array(g, name, value, deformed_dtype=None):
     if deformed_dtype is not None:
         write_positions(g, name, value, deformed_dtype)
         return
+    if isinstance(value, StepRows):  # a merge's per-vertex rows, one range at a time: as `data=` lays them out
+        ds = g.create_dataset(name, shape=value.shape, dtype=value.dtype)
+        start = 0
+        for block in value.blocks():
+            ds[start:start + len(block)] = block
+            start += len(block)
+        return
     a = np.asarray(value)
     if _is_text(a):
         data = np.array([str(x) for x in a.ravel()], dtype=object).reshape(a.shape)
@@ -142,7 +149,7 @@ def _check_steps(steps: dict, T: int, N: int, where: str, require=()) -> int:
             raise FormatError(f"steps/{key} must be {shape}; got {got} in {where}:/steps/{key}")
     for key, value in steps.items():
         if key in NUMERIC_STEPS or key.startswith(NUMERIC_PREFIXES):
-            dtype = value.dtype if isinstance(value, (Frames, h5py.Dataset)) else np.asarray(value).dtype
+            dtype = value.dtype if isinstance(value, (Frames, StepRows, h5py.Dataset)) else np.asarray(value).dtype
             if dtype.kind not in "iuf":
                 raise FormatError(f"steps/{key} must be numeric; got {dtype} in {where}:/steps/{key}")
         elif key in TEXT_STEPS and np.asarray(value).dtype.kind not in "USO":
@@ -203,7 +210,8 @@ def write_result(path, seq: Sequence, steps: dict, attrs: dict, groups: dict | N
         header read with a frame window), and `seq.validate` is not run.
     steps : dict of str -> array_like
         Per-step arrays, see the module docstring; ``deformed`` is cast to the input dtype
-        and may be a `frames.Frames` too.
+        and may be a `frames.Frames` too, any other a `frames.StepRows` (written block by
+        block).
     attrs : dict
         Options, input name, ...; written over the sequence's own attributes (so a
         ``thickness``, ``dt`` or ``source`` key here replaces the sequence's value

@@ -56,8 +56,9 @@ def deform_file_task(task, out_path, options, with_stats, threads):
     """Worker: deform a whole file (`task` without a range) and write its result itself.
 
     `out_path` lies in the run's own folder (`deform_many` moves it to its name once every
-    task succeeded). Returns the per-step arrays without ``deformed`` (the summary the
-    driver prints): positions never travel back through the scheduler, and the result
+    task succeeded). Returns the per-step arrays without ``deformed`` and the per-vertex
+    ones (`_light`; the summary the driver prints): positions never travel back through
+    the scheduler, and the result
     files of several inputs are written (compressed) by the workers in parallel.
     """
     seq, steps, groups = _deform(task, options, with_stats, threads)
@@ -78,7 +79,7 @@ def merge_task(path, out_path, parts, options):
     from ..formats import read_sequence
     from ..formats.frames import StoredFrames
 
-    steps, groups = merge_partials(sorted(parts), stream_deformed=True)
+    steps, groups = merge_partials(sorted(parts), stream=True)
     seq = read_sequence(path, format=options.get("format"), frame_window=(0, 2))  # all but the frames, validated
     with h5py.File(path, "r") as f:
         seq.positions = StoredFrames(f["positions"], path)
@@ -94,7 +95,10 @@ def merge_task(path, out_path, parts, options):
 
 
 def _light(steps) -> dict:
-    return {k: v for k, v in steps.items() if k != "deformed"}
+    """The per-step arrays the driver's summary reads: not ``deformed`` nor the per-vertex
+    rows (``--per-vertex``: ``(S, N)`` each, streamed by a merge from files it then removes;
+    a few hundred 64K recordings' would fill the driver's memory)."""
+    return {k: v for k, v in steps.items() if k != "deformed" and not k.endswith("_per_vertex")}
 
 
 def _write_output(path, out_path, seq, steps, groups, options):
@@ -134,7 +138,8 @@ def deform_many(specs, output, *, options, overwrite=False, with_stats=False, wo
 
     Returns
     -------
-    list of (input, output, steps) in input order; `steps` without ``deformed``.
+    list of (input, output, steps) in input order; `steps` without ``deformed`` and the
+    per-vertex rows (`_light`).
 
     Raises
     ------
