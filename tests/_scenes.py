@@ -44,6 +44,39 @@ def landing_sheet(n=10, T=8, rest=1e-3, speed=0.03, tilt=0.3, h0=0.12):
     return np.array(frames), grid_faces(n)
 
 
+def rods_on_ground(kind, T=7, K=6, m=12, seed=0):
+    """``(P (T, K m, 3), E)``: K rods of m vertices (0.4 long) in contact-rich motion over z = 0.
+
+    - "stack": rods along x resting 1.2e-3 above the ground; rods along y come down across
+      them and rest 1.1e-3 or more above them (their bend wobbles);
+    - "spin": rods falling 0.05 a step while turning 1.3 rad a step, landing at t = 4 at
+      1.1e-3 + 7e-4 k; in the air they sweep through each other's paths at one height.
+    """
+    rng = np.random.default_rng(seed)
+    s = np.linspace(0.0, 0.4, m)
+    ang, x0, y0 = rng.uniform(0, np.pi, K), rng.uniform(-0.3, 0.3, K), rng.uniform(-0.3, 0.3, K)
+    P = np.zeros((T, K * m, 3))
+    for t in range(T):
+        for k in range(K):
+            if kind == "stack":
+                lower = k % 2 == 0
+                d = np.array([1.0, 0, 0]) if lower else np.array([0, 1.0, 0])
+                base = np.array([-0.2, -0.2 + 0.11 * (k // 2), 0]) if lower else np.array([-0.2 + 0.11 * (k // 2), -0.2, 0])
+                z = 1.2e-3 + 0 * s if lower else max(0.03 - 0.012 * t, 2.6e-3 + 1e-4 * t) + 3e-4 * np.sin(9 * s + t)
+            elif kind == "spin":
+                a = ang[k] + 1.3 * t
+                d = np.array([np.cos(a), np.sin(a), 0.0])
+                base = np.array([x0[k], y0[k], 0.0]) - 0.2 * d
+                z = max(0.2 - 0.05 * t, 1.1e-3 + 7e-4 * k) + 0.05 * np.sin(a) * s * (t < 4)
+            else:
+                raise ValueError(kind)
+            pts = base + s[:, None] * d
+            pts[:, 2] = z
+            P[t, k * m:(k + 1) * m] = pts
+    E = np.array([[k * m + i, k * m + i + 1] for k in range(K) for i in range(m - 1)])
+    return P, E
+
+
 def box_mesh(lo, hi):
     """A closed box (12 triangles) between corners lo and hi."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
