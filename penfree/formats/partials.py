@@ -14,10 +14,15 @@ from .frames import Frames, StepRows
 _DEFORMED = "steps/deformed"
 
 
+def is_per_vertex(name) -> bool:
+    """Whether per-step dataset `name` (``steps/<name>`` or ``<name>``) holds a row per
+    vertex, ``(S, N)``: the ``--per-vertex`` residuals, nearly as large as the recording."""
+    return name.endswith("_per_vertex")
+
+
 def _streamed(key) -> bool:
-    """A dataset that `merge_partials` streams: the deformed states and the per-vertex rows
-    (``--per-vertex`` residuals, ``(S, N)``), each as large as the recording or close."""
-    return key == _DEFORMED or (key.startswith("steps/") and key.endswith("_per_vertex"))
+    """A dataset that `merge_partials` streams: the deformed states and the per-vertex rows."""
+    return key == _DEFORMED or (key.startswith("steps/") and is_per_vertex(key))
 
 
 def _flatten(prefix, d, out):

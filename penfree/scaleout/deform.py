@@ -11,7 +11,7 @@ import tempfile
 import numpy as np
 
 from ..errors import InputError
-from ..formats.partials import merge_partials, write_partial
+from ..formats.partials import is_per_vertex, merge_partials, write_partial
 from .cluster import client, gather, n_workers_of, new_key, set_threads
 from .plan import deform_outputs, expand_inputs, plan
 
@@ -58,8 +58,8 @@ def deform_file_task(task, out_path, options, with_stats, threads):
     `out_path` lies in the run's own folder (`deform_many` moves it to its name once every
     task succeeded). Returns the per-step arrays without ``deformed`` and the per-vertex
     ones (`_light`; the summary the driver prints): positions never travel back through
-    the scheduler, and the result
-    files of several inputs are written (compressed) by the workers in parallel.
+    the scheduler, and the result files of several inputs are written (compressed) by the
+    workers in parallel.
     """
     seq, steps, groups = _deform(task, options, with_stats, threads)
     _write_output(task.path, out_path, seq, steps, groups, options)
@@ -98,7 +98,7 @@ def _light(steps) -> dict:
     """The per-step arrays the driver's summary reads: not ``deformed`` nor the per-vertex
     rows (``--per-vertex``: ``(S, N)`` each, streamed by a merge from files it then removes;
     a few hundred 64K recordings' would fill the driver's memory)."""
-    return {k: v for k, v in steps.items() if k != "deformed" and not k.endswith("_per_vertex")}
+    return {k: v for k, v in steps.items() if k != "deformed" and not is_per_vertex(k)}
 
 
 def _write_output(path, out_path, seq, steps, groups, options):
