@@ -77,6 +77,40 @@ def rods_on_ground(kind, T=7, K=6, m=12, seed=0):
     return P, E
 
 
+def chain_links(T=10, K=7, m=16, R=0.05, gap=4e-3, slide=2.5, seed=0):
+    """``(P (T, K m, 3), E)``: a hanging chain of K interlocked links, closed loops of m
+    segments (radius R), in alternating planes, `gap` apart where they cross.
+
+    The chain swings about y (0.25 rad); each link twists about the chain's axis (0.15
+    rad) and slides along it by up to ``slide gap / 2``: neighbouring links close in on
+    each other, to 5e-5 apart at the default `slide`, so the constant-velocity prediction
+    drives links through each other on most steps.
+    """
+    rng = np.random.default_rng(seed)
+    th = np.linspace(0.0, 2.0 * np.pi, m, endpoint=False)
+    ph = rng.uniform(0.0, 2.0 * np.pi, K)
+    d = 2.0 * R - gap  # centre spacing: the links cross `gap` apart
+    P = np.zeros((T, K * m, 3))
+    for t in range(T):
+        swing = _turn([0, 1, 0], 0.25 * np.sin(0.5 * t))
+        for k in range(K):
+            ring = np.stack([R * np.cos(th), np.zeros(m), R * np.sin(th)], 1)  # in the xz plane
+            if k % 2:
+                ring = ring @ _turn([0, 0, 1], 0.5 * np.pi).T  # in the yz plane
+            ring = ring @ _turn([0, 0, 1], 0.15 * np.sin(0.7 * t + ph[k])).T
+            c = np.array([0.0, 0.0, -k * d - slide * gap * 0.5 * np.sin(0.9 * t + ph[k])])
+            P[t, k * m:(k + 1) * m] = (ring + c) @ swing.T
+    E = np.array([[k * m + i, k * m + (i + 1) % m] for k in range(K) for i in range(m)])
+    return P, E
+
+
+def _turn(axis, a):
+    """The rotation by `a` radians about `axis` (Rodrigues)."""
+    n = np.asarray(axis, float) / np.linalg.norm(axis)
+    C = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
+    return np.eye(3) + np.sin(a) * C + (1.0 - np.cos(a)) * C @ C
+
+
 def box_mesh(lo, hi):
     """A closed box (12 triangles) between corners lo and hi."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)

@@ -19,11 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import InputError
-from ..verify.gate import deform_margin
+from ..verify.gate import ALL_PAIRS, deform_margin
 from ..fit.step import fit_step
-
-#: verify_step lists violating pairs up to this many per round (all of them in practice).
-_ALL_PAIRS = 1 << 30
 
 
 @dataclass
@@ -107,7 +104,7 @@ def _primitive_vertices(kind, i, j, res, faces):
 
 
 def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0.0, weights=None,
-                       margin=None, model="affine", projection="auto", out=None) -> ComponentStep:
+                       margin=None, model="affine", projection="auto", out=None, check=None) -> ComponentStep:
     """One certified map per component; components whose paths may meet share a map.
 
     Parameters
@@ -126,6 +123,11 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
         (`gate.deform_margin`); with a thickness the pairs closer than the rule covers
         are checked by the caller's gate (`gate.StepGate`).
     out : (N, 3) array or None
+    check : callable or None
+        ``check(x_def) -> VerifyResult`` of the path x -> x_def in the deform-result
+        reading, every violating pair listed: deform passes its step gate's
+        (`gate.StepGate.between_maps`), which checks the written step the same way.
+        None: `verify_step` with those options.
 
     Returns
     -------
@@ -177,8 +179,11 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
         if len(fitted) == 1:
             break
         # a pair touching at the start that moves is a violation (`path._excuse`): its groups merge
-        res = verify_step(x, x_def, edges=edges, faces=faces, thickness=thickness, max_pairs=_ALL_PAIRS,
-                          start_intersections=False, pre_existing=True)
+        if check is not None:
+            res = check(x_def)
+        else:
+            res = verify_step(x, x_def, edges=edges, faces=faces, thickness=thickness, max_pairs=ALL_PAIRS,
+                              start_intersections=False, pre_existing=True)
         if res.ok:
             break
         before = group.copy()

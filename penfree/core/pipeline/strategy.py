@@ -199,7 +199,7 @@ class PerComponent:
 
         cs = per_component_step(step.x_prev, step.x, self.labels, edges=self.seq.edges, faces=self.seq.faces,
                                 thickness=self.thickness, weights=step.weights, margin=step.margin,
-                                projection=self.projection)
+                                projection=self.projection, check=step.gate.between_maps)
         yield _component_outcome(cs, self.labels)
         yield from self.fallback.outcomes(step)
 

@@ -25,6 +25,13 @@ states" and "Obstacles"):
   resting inside h must stay disjoint, a pair touching at the start must not move
   (the rounded map can make it cross). No global margin is derived from the smallest
   gap, so resting contact does not freeze a step;
+- several maps (`per-component`: each group of objects moved by its own map): no
+  certificate covers a pair whose two primitives different maps move, however far apart
+  they start, so the whole path goes through the conservative CCD (`StepGate.between_maps`:
+  `verify.verify_step` in the deform-result reading, as `verify` judges the written
+  step). The strategy that merges groups until their paths are apart asks the gate the
+  same question (the last answer is kept, so a step pays for one CCD per distinct
+  x_def); the gate never takes a strategy's word for it;
 - obstacles held at the step's frame: half-spaces exactly, meshes by conservative CCD
   (`verify.verify_step` with ``self_pairs=False``).
 
@@ -41,6 +48,11 @@ from ...constants import (
     UNIT_ROUNDOFF, VERIFY_MARGIN_LADDER,
 )
 from ..fit.certificate import certify, certify_map, fast_margin_bound
+
+
+#: `StepGate.between_maps` lists violating pairs up to this many (all of them in practice:
+#: `per-component` merges their groups).
+ALL_PAIRS = 1 << 30
 
 
 def margin_rule(thickness) -> float:
@@ -131,6 +143,7 @@ class StepGate:
         self.frame = int(frame)
         self._near, self._near_radius = None, 0.0
         self._separations = None
+        self._between = None  # (x_def, VerifyResult) of the last `between_maps`
         self.has_topology = (edges is not None and len(edges) > 0) or (faces is not None and len(faces) > 0)
 
     def use_separations(self, d):
@@ -179,6 +192,8 @@ class StepGate:
             return False
         if self.has_topology and not self._near_ok(x_def64, maps, stored):
             return False
+        if self.has_topology and len(maps) > 1 and not self.between_maps(x_def64).ok:
+            return False
         return self._obstacles_ok(x_def64)
 
     def rounding_limit(self, x_def64, stored) -> float:
@@ -224,6 +239,22 @@ class StepGate:
         reach = reach * (1.0 + 1e-6) + DISTANCE_ROUNDING_REL * self.magnitude
         close = [(kind, ij[d0 < reach], idx[d0 < reach]) for kind, ij, idx, d0 in self.near(reach)]
         return check_pairs(close, self.x, x_def64, self.thickness)
+
+    def between_maps(self, x_def):
+        """`verify.verify_step` of the path x -> `x_def` in the deform-result reading
+        (pre-existing contact excused as `verify` excuses it), every violating pair listed:
+        the check of a step whose maps move different objects. The last answer is kept
+        for an equal `x_def` (`per-component` merges its groups by it, then the gate
+        passes the same x_def)."""
+        x_def64 = np.asarray(x_def, dtype=np.float64)
+        if self._between is not None and np.array_equal(self._between[0], x_def64):
+            return self._between[1]
+        from .path import verify_step
+
+        r = verify_step(self.x, x_def64, edges=self.edges, faces=self.faces, thickness=self.thickness,
+                        max_pairs=ALL_PAIRS, start_intersections=False, pre_existing=True)
+        self._between = (x_def64.copy(), r)
+        return r
 
     def _obstacles_ok(self, x_def64) -> bool:
         if not self.obstacles:

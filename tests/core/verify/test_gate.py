@@ -253,6 +253,40 @@ def test_gate_refuses_to_move_a_touching_pair(thickness):
     assert gate.passes(x.copy(), [(np.eye(3), np.zeros(3), None)])
 
 
+@pytest.mark.parametrize("thickness", [0.0, 0.01])
+@pytest.mark.parametrize("kind", ["rods", "sheets"])
+def test_gate_refuses_two_maps_that_pass_their_objects_through_each_other(thickness, kind):
+    """Two objects 0.5 apart, each moved by its own map (a translation: every
+    certificate passes), the upper one down through the lower one. No near pair exists
+    at the start and no single map's certificate covers a pair that two maps move: the
+    gate runs the CCD of the whole path, whatever the strategy that proposed the maps
+    checked. Moving both by one map, or only apart, passes."""
+    if kind == "rods":
+        s = np.linspace(-0.5, 0.5, 6)
+        low = np.stack([s, np.zeros(6), np.zeros(6)], 1)
+        high = np.stack([np.zeros(6), s, np.full(6, 0.5)], 1)
+        topo = {"edges": np.array([[i, i + 1] for i in range(5)] + [[6 + i, 7 + i] for i in range(5)])}
+    else:
+        u, v = np.meshgrid(np.linspace(-0.5, 0.5, 4), np.linspace(-0.5, 0.5, 4), indexing="ij")
+        low = np.stack([u.ravel(), v.ravel(), np.zeros(16)], 1)
+        high = low + [0.05, 0.03, 0.5]
+        F = np.array([[i * 4 + j, (i + 1) * 4 + j, i * 4 + j + 1] for i in range(3) for j in range(3)]
+                     + [[(i + 1) * 4 + j, (i + 1) * 4 + j + 1, i * 4 + j + 1] for i in range(3) for j in range(3)])
+        topo = {"faces": np.vstack([F, F + 16])}
+    x = np.vstack([low, high])
+    n = len(low)
+    lower, upper = np.arange(n), np.arange(n, 2 * n)
+    gate = StepGate(x, thickness=thickness, **topo)
+    down, up = np.array([0, 0, -1.0]), np.array([0, 0, 0.2])
+    through = x.copy()
+    through[upper] += down
+    assert not gate.passes(through, [(np.eye(3), np.zeros(3), lower), (np.eye(3), down, upper)])
+    apart = x.copy()
+    apart[upper] += up
+    assert gate.passes(apart, [(np.eye(3), np.zeros(3), lower), (np.eye(3), up, upper)])
+    assert gate.passes(x + down, [(np.eye(3), down, None)])
+
+
 @pytest.mark.parametrize("origin", [0.0, 100.0, 1e3, 1e4])
 def test_float32_far_from_the_origin_keeps_its_maps_at_a_thickness(origin):
     """Two sheets 0.01 apart turning and drifting, stored as float32 at `origin`, with a
