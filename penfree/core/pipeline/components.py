@@ -5,7 +5,8 @@ one global map. Here every object gets its own map, fitted and certified exactly
 global one (`fit_step` on its vertices), which makes the paths of each object's own
 primitives penetration-free. Pairs *between* objects are not covered by any single
 certificate: their straight paths are checked with the conservative CCD of
-`verify_step` (no false negatives). When a pair of different groups may touch, the
+`verify_step` (no false negatives), as the step gate checks every step moved by several
+maps (`gate.StepGate.between_maps`, which deform passes in). When a pair of different groups may touch, the
 two groups are merged and refitted with one shared map; this repeats until the check
 is clean. It terminates: every round merges at least two groups, and a single group
 is one global certified map, safe for every pair of an intersection-free start state.
@@ -19,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import InputError
-from ..verify.gate import ALL_PAIRS, deform_margin
+from ..verify.gate import StepGate, deform_margin
 from ..fit.step import fit_step
 
 
@@ -127,7 +128,7 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
         ``check(x_def) -> VerifyResult`` of the path x -> x_def in the deform-result
         reading, every violating pair listed: deform passes its step gate's
         (`gate.StepGate.between_maps`), which checks the written step the same way.
-        None: `verify_step` with those options.
+        None: that of a gate of its own at `x`.
 
     Returns
     -------
@@ -144,8 +145,6 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
     certified group) merges everything into one global map, which is certified.
     """
     t0 = time.perf_counter()
-    from ..verify.path import verify_step  # the CCD stage; imported here to keep start-up light
-
     x = np.asarray(x)
     x_prev = np.asarray(x_prev)
     n = x.shape[0]
@@ -155,6 +154,8 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
     C = int(labels.max()) + 1 if n else 0
     if margin is None:
         margin = deform_margin(thickness)
+    if check is None:
+        check = StepGate(x, edges=edges, faces=faces, thickness=thickness).between_maps
     w = None if weights is None else np.asarray(weights, dtype=np.float64)
     faces_arr = None if faces is None else np.asarray(faces, dtype=np.int64)
     group = np.arange(C)  # group of each component: its smallest member
@@ -179,11 +180,7 @@ def per_component_step(x_prev, x, labels, *, edges=None, faces=None, thickness=0
         if len(fitted) == 1:
             break
         # a pair touching at the start that moves is a violation (`path._excuse`): its groups merge
-        if check is not None:
-            res = check(x_def)
-        else:
-            res = verify_step(x, x_def, edges=edges, faces=faces, thickness=thickness, max_pairs=ALL_PAIRS,
-                              start_intersections=False, pre_existing=True)
+        res = check(x_def)
         if res.ok:
             break
         before = group.copy()
