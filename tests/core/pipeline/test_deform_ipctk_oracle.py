@@ -5,8 +5,8 @@ distances at both ends.
 
 The scenes are the contact-rich inputs of real recordings: a sheet landing on the
 ground (a half-space, a floor mesh), resting on it at, below and above the thickness,
-two sheets squeezed together over a box, float32 data and coordinates far from the
-origin. Obstacles are held at the step's frame (SPEC section 5). A pair that starts
+two sheets squeezed together over a box, rods on the ground, a chain of interlocked
+links, float32 data and coordinates far from the origin. Obstacles are held at the step's frame (SPEC section 5). A pair that starts
 within the thickness is pre-existing and skipped (SPEC section 6).
 """
 
