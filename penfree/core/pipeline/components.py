@@ -5,10 +5,10 @@ one global map. Here every object gets its own map, fitted and certified exactly
 global one (`fit_step` on its vertices), which makes the paths of each object's own
 primitives penetration-free. Pairs *between* objects are not covered by any single
 certificate: their straight paths are checked with the conservative CCD of
-`verify_step` (no false negatives), as the step gate checks every step moved by several
-maps (`gate.StepGate.between_maps`, which deform passes in). When a pair of different groups may touch, the
-two groups are merged and refitted with one shared map; this repeats until the check
-is clean. It terminates: every round merges at least two groups, and a single group
+`verify_step` (no false negatives), the check the step gate runs on every step moved by
+several maps (`gate.StepGate.between_maps`, which deform passes in). When a pair of
+different groups may touch, the two groups are merged and refitted with one shared
+map; this repeats until the check is clean. It terminates: every round merges at least two groups, and a single group
 is one global certified map, safe for every pair of an intersection-free start state.
 """
 
