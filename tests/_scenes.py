@@ -4,6 +4,8 @@ import numpy as np
 
 from penfree.sequence import Obstacle, Sequence
 
+from _geom import rot
+
 
 def grid_faces(n, m=None):
     m = n if m is None else m
@@ -92,23 +94,16 @@ def chain_links(T=10, K=7, m=16, R=0.05, gap=4e-3, slide=2.5, seed=0):
     d = 2.0 * R - gap  # centre spacing: the links cross `gap` apart
     P = np.zeros((T, K * m, 3))
     for t in range(T):
-        swing = _turn([0, 1, 0], 0.25 * np.sin(0.5 * t))
+        swing = rot([0, 1, 0], np.degrees(0.25 * np.sin(0.5 * t)))
         for k in range(K):
             ring = np.stack([R * np.cos(th), np.zeros(m), R * np.sin(th)], 1)  # in the xz plane
             if k % 2:
-                ring = ring @ _turn([0, 0, 1], 0.5 * np.pi).T  # in the yz plane
-            ring = ring @ _turn([0, 0, 1], 0.15 * np.sin(0.7 * t + ph[k])).T
+                ring = ring @ rot([0, 0, 1], 90.0).T  # in the yz plane
+            ring = ring @ rot([0, 0, 1], np.degrees(0.15 * np.sin(0.7 * t + ph[k]))).T
             c = np.array([0.0, 0.0, -k * d - slide * gap * 0.5 * np.sin(0.9 * t + ph[k])])
             P[t, k * m:(k + 1) * m] = (ring + c) @ swing.T
     E = np.array([[k * m + i, k * m + (i + 1) % m] for k in range(K) for i in range(m)])
     return P, E
-
-
-def _turn(axis, a):
-    """The rotation by `a` radians about `axis` (Rodrigues)."""
-    n = np.asarray(axis, float) / np.linalg.norm(axis)
-    C = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
-    return np.eye(3) + np.sin(a) * C + (1.0 - np.cos(a)) * C @ C
 
 
 def box_mesh(lo, hi):
