@@ -12,6 +12,8 @@ from penfree.core.topology import edges_from_faces
 from penfree.core.verify.gate import StepGate, deviation_bound
 from penfree.core.verify.pairs import near_pairs
 
+from _scenes import grid_faces, sheet
+
 
 def _exact_max_dev_sq(x, x_def, A, b):
     best = Fraction(0)
@@ -267,12 +269,10 @@ def test_gate_refuses_two_maps_that_pass_their_objects_through_each_other(thickn
         high = np.stack([np.zeros(6), s, np.full(6, 0.5)], 1)
         topo = {"edges": np.array([[i, i + 1] for i in range(5)] + [[6 + i, 7 + i] for i in range(5)])}
     else:
-        u, v = np.meshgrid(np.linspace(-0.5, 0.5, 4), np.linspace(-0.5, 0.5, 4), indexing="ij")
-        low = np.stack([u.ravel(), v.ravel(), np.zeros(16)], 1)
+        u, v = sheet(4)
+        low = np.stack([u - 0.5, v - 0.5, np.zeros(16)], 1)
         high = low + [0.05, 0.03, 0.5]
-        F = np.array([[i * 4 + j, (i + 1) * 4 + j, i * 4 + j + 1] for i in range(3) for j in range(3)]
-                     + [[(i + 1) * 4 + j, (i + 1) * 4 + j + 1, i * 4 + j + 1] for i in range(3) for j in range(3)])
-        topo = {"faces": np.vstack([F, F + 16])}
+        topo = {"faces": np.vstack([grid_faces(4), grid_faces(4) + 16])}
     x = np.vstack([low, high])
     n = len(low)
     lower, upper = np.arange(n), np.arange(n, 2 * n)
