@@ -69,6 +69,53 @@ OBSTACLE_FORMS = ("positions or vertices (M, 3) / (T, M, 3) with faces (K, 3) or
                   "or normal (3,) with offset (attribute or dataset)")
 
 
+#: The order of an `AnalyticShape`'s profile values.
+PROFILE_FIELDS = ("height", "disc_bottom", "round_bottom", "disc_top", "round_top")
+
+
+@dataclass
+class AnalyticShape:
+    """The exact solid of an analytic collider, kept beside the mesh that contains it.
+
+    Every analytic collider penfree reads (USD's Sphere, Capsule, Capsule_1,
+    Cylinder, Cylinder_1 and Cone) is, in its local coordinates, the convex hull
+    of two *rounded discs* centred on a local axis: at ``-height/2`` the disc of
+    radius ``disc_bottom`` swept by a ball of radius ``round_bottom``, at
+    ``+height/2`` the same with ``disc_top`` and ``round_top``. A sphere of
+    radius r is ``(0, 0, r, 0, r)``, a capsule ``(h, 0, r, 0, r)``, a cylinder
+    ``(h, r, 0, r, 0)``, a cone ``(h, r, 0, 0, 0)``. The world solid is the
+    image under ``world = local @ L + c``.
+
+    Attributes
+    ----------
+    source : str
+        What the shape was in its file (``"Sphere"``, ...), for messages only.
+    axis : int
+        The local axis of revolution: 0, 1 or 2 (X, Y, Z).
+    profile : (5,) or (T, 5) float64
+        `PROFILE_FIELDS` per frame (or one row for all frames), each >= 0.
+    transform : (4, 3) or (T, 4, 3) float64
+        Rows 0-2 the linear part ``L`` (nonsingular), row 3 the translation ``c``.
+    """
+
+    source: str
+    axis: int
+    profile: np.ndarray
+    transform: np.ndarray
+
+    def at(self, s: int):
+        """``(profile (5,), L (3, 3), c (3,))`` at frame `s`."""
+        p = self.profile if self.profile.ndim == 1 else self.profile[s]
+        m = self.transform if self.transform.ndim == 2 else self.transform[s]
+        return p, m[:3], m[3]
+
+    def take(self, frames) -> "AnalyticShape":
+        """The shape over the frames `frames` (an index array or slice) of its sequence."""
+        p = self.profile if self.profile.ndim == 1 else self.profile[frames]
+        m = self.transform if self.transform.ndim == 2 else self.transform[frames]
+        return AnalyticShape(self.source, self.axis, p, m)
+
+
 @dataclass
 class Obstacle:
     """A collider the scene must not enter: a mesh (kinematic or static) or a half-space.
@@ -85,6 +132,10 @@ class Obstacle:
         Half-space obstacles: the plane ``normal . x = offset``; the free side is
         ``normal . x > offset``.
     offset : float or None
+    shape : AnalyticShape or None
+        Mesh obstacles that stand for an analytic collider: its exact solid. The
+        mesh is its containing tessellation; the checks use both (the solid decides
+        the primitives that start between the shape and its mesh).
     """
 
     name: str
@@ -93,6 +144,7 @@ class Obstacle:
     edges: Optional[np.ndarray] = None
     normal: Optional[np.ndarray] = None
     offset: Optional[float] = None
+    shape: Optional[AnalyticShape] = None
 
     @property
     def is_half_space(self) -> bool:
@@ -291,11 +343,44 @@ def _check_obstacle(ob: Obstacle, T: int, where: str):
     ob.edges = _check_topology(ob.edges, 2, m, where, f"obstacles/{ob.name}/edges")
     if (ob.faces is None or not len(ob.faces)) and (ob.edges is None or not len(ob.edges)):
         raise InputError(f"obstacle needs faces or edges in {ds}")
+    if ob.shape is not None:
+        _check_shape(ob.shape, T, where, f"obstacles/{ob.name}/shape")
+
+
+def _check_shape(sh: AnalyticShape, T: int, where: str, name: str):
+    """An analytic solid: axis 0-2, profile (5,) / (T, 5) finite and >= 0 and not all 0,
+    transform (4, 3) / (T, 4, 3) finite with a nonsingular linear part."""
+    ds = f"{where}:/{name}"
+    if sh.axis not in (0, 1, 2):
+        raise InputError(f"shape axis must be X, Y or Z; got {sh.axis!r} in {ds}")
+    p = np.asarray(sh.profile)
+    if p.dtype.kind not in "biuf" or p.shape not in ((5,), (T, 5)):
+        raise InputError(f"shape profile must be numeric (5,) or ({T}, 5) ({', '.join(PROFILE_FIELDS)}); "
+                         f"got {p.shape} {p.dtype} in {ds}/profile")
+    p = p.astype(np.float64)
+    if not np.isfinite(p).all() or (p < 0).any():
+        raise InputError(f"shape profile must be finite and >= 0 in {ds}/profile")
+    if not (p.reshape(-1, 5)[:, 1:].max(axis=1) > 0).all():
+        raise InputError(f"shape profile must give a solid (a disc or rounding radius > 0) in every frame in {ds}/profile")
+    check_scale(p, where, f"{name}/profile")
+    m = np.asarray(sh.transform)
+    if m.dtype.kind not in "biuf" or m.shape not in ((4, 3), (T, 4, 3)):
+        raise InputError(f"shape transform must be numeric (4, 3) or ({T}, 4, 3) (the linear part's rows, then the "
+                         f"translation); got {m.shape} {m.dtype} in {ds}/transform")
+    m = m.astype(np.float64)
+    if not np.isfinite(m).all():
+        raise InputError(f"shape transform must be finite in {ds}/transform")
+    check_scale(m, where, f"{name}/transform")
+    L = m.reshape(-1, 4, 3)[:, :3]
+    sv = np.linalg.svd(L, compute_uv=False)
+    if not (sv[:, -1] > 1e-12 * sv[:, 0]).all():
+        raise InputError(f"shape transform must have a nonsingular linear part in every frame in {ds}/transform")
+    sh.profile, sh.transform = np.ascontiguousarray(p), np.ascontiguousarray(m)
 
 
 def _check_half_space(ob: Obstacle, ds: str):
     """A half-space: ``normal`` (3,) finite and non-zero, ``offset`` a finite scalar, nothing else."""
-    if ob.positions is not None or ob.faces is not None or ob.edges is not None:
+    if ob.positions is not None or ob.faces is not None or ob.edges is not None or ob.shape is not None:
         raise InputError(f"obstacle must be either a mesh (positions + faces/edges) or a half-space "
                          f"(normal + offset), not both, in {ds}")
     n = np.asarray(ob.normal if ob.normal is not None else np.zeros(0))

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from ..sequence import Obstacle
+from ..sequence import AnalyticShape, Obstacle
 from . import _usd_shapes as shapes
-from ._usd_stage import ANALYTIC_SIZES, POINTS64, skinning_query
+from ._usd_stage import ANALYTIC_SIZES, POINTS64, SHAPE_ATTRS, skinning_query
 
 def _world(scan, prim, t, UsdGeom):
     """Local-to-world ``(3, 3)`` linear part (row-vector convention) and ``(3,)`` translation, in metres."""
@@ -262,6 +262,92 @@ def _analytic_mesh(kind, *size):
     return shapes.frustum(size[0], size[1], size[2], axis)  # Cylinder_1
 
 
+def _profile(kind, *size):
+    """The `AnalyticShape` profile (height, disc_bottom, round_bottom, disc_top, round_top) of
+    `_analytic_size`'s values: the solid that `_analytic_mesh` contains, bottom end at
+    ``-height/2`` along the axis."""
+    if kind == "Sphere":
+        return (0.0, 0.0, size[0], 0.0, size[0])
+    if kind == "Capsule":
+        return (size[1], 0.0, size[0], 0.0, size[0])
+    if kind == "Capsule_1":
+        return (size[2], 0.0, size[0], 0.0, size[1])
+    if kind == "Cylinder":
+        return (size[1], size[0], 0.0, size[0], 0.0)
+    if kind == "Cone":  # apex at +height/2, as `shapes.frustum(radius, 0.0, ...)`
+        return (size[1], size[0], 0.0, 0.0, 0.0)
+    return (size[2], size[0], 0.0, size[1], 0.0)  # Cylinder_1
+
+
+def _one_or_all(rows: np.ndarray) -> np.ndarray:
+    """Per-frame rows ``(T, ...)``, or their one row when every frame has the same (as positions)."""
+    return rows[0] if (rows == rows[0]).all() else rows
+
+
+def _analytic(scan, prim, kind, UsdGeom):
+    """``(X (T, M, 3), F, shape)`` of an analytic collider: its containing mesh in world
+    coordinates at every frame, and its exact solid (None for the Cube, whose mesh is exact)."""
+    times = scan.times
+    keys = [_analytic_size(scan, prim, kind, t) for t in times]
+    cache = {}
+    for key in keys:
+        if key not in cache:
+            cache[key] = _analytic_mesh(kind, *key)
+    meshes = [cache[key] for key in keys]
+    F = meshes[0][1]
+    if any(not np.array_equal(f, F) for _, f in meshes[1:]):
+        raise InputError(f"the {kind}'s size changes over time so that its tessellation changes in "
+                         f"{scan.where(prim)}; expected a fixed shape (give it as a Mesh with PhysicsCollisionAPI)")
+    world = [_world(scan, prim, t, UsdGeom) for t in times]
+    X = np.stack([V @ L + c for (V, _), (L, c) in zip(meshes, world)])
+    if kind == "Cube":
+        return X, F, None
+    axes = {key[-1].upper() for key in keys}
+    if kind != "Sphere" and len(axes) > 1:
+        raise InputError(f"the {kind}'s axis changes over time ({', '.join(sorted(axes))}) in {scan.where(prim)}; "
+                         f"expected a fixed axis")
+    profile = np.array([_profile(kind, *key[:-1]) for key in keys], dtype=np.float64)
+    transform = np.stack([np.vstack([L, c]) for L, c in world])
+    shape = AnalyticShape(source=kind, axis="XYZ".index(keys[0][-1].upper()),
+                          profile=_one_or_all(profile), transform=_one_or_all(transform))
+    return X, F, shape
+
+
+def _stored_shape(scan, prim, UsdGeom):
+    """The exact solid penfree's writer kept on an obstacle prim (`SHAPE_ATTRS`), or None.
+
+    The stored transform maps the shape into the prim's own coordinates (those of its
+    points); the prim's local-to-world transform (and metersPerUnit) follows it.
+    """
+    attrs = {key: prim.GetAttribute(name) for key, name in SHAPE_ATTRS.items()}
+    if not attrs["profile"].IsValid() or not attrs["profile"].HasValue():
+        return None
+    where = scan.where(prim)
+    source, axis = attrs["source"].Get() if attrs["source"].IsValid() else None, \
+        attrs["axis"].Get() if attrs["axis"].IsValid() else None
+    if str(axis) not in ("X", "Y", "Z"):
+        raise InputError(f"{SHAPE_ATTRS['axis']} must be X, Y or Z; got {axis!r} in {where}.{SHAPE_ATTRS['axis']}")
+    profiles, transforms = [], []
+    for t in scan.times:
+        p = attrs["profile"].Get(t)
+        m = attrs["transform"].Get(t) if attrs["transform"].IsValid() else None
+        p = np.asarray(p if p is not None else [], dtype=np.float64)
+        if p.shape != (5,):
+            raise InputError(f"{SHAPE_ATTRS['profile']} must hold 5 numbers; got {p.shape} at time code {t:g} "
+                             f"in {where}.{SHAPE_ATTRS['profile']}")
+        if m is None:
+            raise InputError(f"{SHAPE_ATTRS['transform']} (matrix4d) is missing at time code {t:g} "
+                             f"in {where}.{SHAPE_ATTRS['transform']}")
+        m = np.array(m, dtype=np.float64)
+        L, c = _world(scan, prim, t, UsdGeom)
+        if not _is_identity(L, c):
+            m = m @ np.block([[L, np.zeros((3, 1))], [c, np.ones(1)]])
+        profiles.append(p)
+        transforms.append(np.vstack([m[:3, :3], m[3, :3]]))
+    return AnalyticShape(source=str(source or "shape"), axis="XYZ".index(str(axis)),
+                         profile=_one_or_all(np.stack(profiles)), transform=_one_or_all(np.stack(transforms)))
+
+
 def obstacle(scan, prim, names, UsdGeom) -> Obstacle:
     kind = prim.GetTypeName()
     name = prim.GetName()
@@ -281,23 +367,12 @@ def obstacle(scan, prim, names, UsdGeom) -> Obstacle:
                              f"expected a scale that keeps both of the plane's own axes nonzero")
         return Obstacle(name, normal=n, offset=float(n @ c))
     if kind in ANALYTIC_SIZES:
-        meshes, cache = [], {}
-        for t in times:
-            key = _analytic_size(scan, prim, kind, t)
-            if key not in cache:
-                cache[key] = _analytic_mesh(kind, *key)
-            meshes.append(cache[key])
-        F = meshes[0][1]
-        if any(not np.array_equal(f, F) for _, f in meshes[1:]):
-            raise InputError(f"the {kind}'s size changes over time so that its tessellation changes in "
-                             f"{scan.where(prim)}; expected a fixed shape (give it as a Mesh with PhysicsCollisionAPI)")
-        X = np.stack([V @ L + c for (V, _), (L, c) in zip(meshes, (_world(scan, prim, t, UsdGeom) for t in times))])
-        return Obstacle(name, positions=X[0] if (X == X[0]).all() else X, faces=F)
+        X, F, shape = _analytic(scan, prim, kind, UsdGeom)
+        return Obstacle(name, positions=_one_or_all(X), faces=F, shape=shape)
     X = points(scan, prim, times, UsdGeom).astype(np.float64)
+    shape = _stored_shape(scan, prim, UsdGeom)
     if prim.IsA(UsdGeom.BasisCurves):
         E, _, _ = curve_topology(scan, prim, UsdGeom, times[0])
-        return Obstacle(name, positions=X[0] if (X == X[0]).all() else X, edges=E)
+        return Obstacle(name, positions=_one_or_all(X), edges=E, shape=shape)
     F, _ = mesh_topology(scan, prim, UsdGeom, times[0])
-    return Obstacle(name, positions=X[0] if (X == X[0]).all() else X, faces=F)
-
-
+    return Obstacle(name, positions=_one_or_all(X), faces=F, shape=shape)

@@ -21,6 +21,11 @@ INSTALL_HINT = "USD support needs the optional package usd-core: pip install 'pe
 POINTS64 = "penfree:points"
 #: Custom attribute marking a prim written by penfree ("recorded" or "deformed").
 ROLE = "penfree:role"
+#: Custom attributes of an obstacle prim written by penfree that keep its exact analytic solid
+#: (`sequence.AnalyticShape`) beside its mesh: the transform maps the solid into the prim's own
+#: coordinates (USD's row-vector convention), profile and transform time-sampled when they change.
+SHAPE_ATTRS = {"source": "penfree:shape:source", "axis": "penfree:shape:axis",
+               "profile": "penfree:shape:profile", "transform": "penfree:shape:transform"}
 #: The analytic colliders read as containing meshes (``_usd_shapes``) and their size attributes;
 #: a ``Plane`` is a half-space.
 ANALYTIC_SIZES = {
@@ -175,11 +180,15 @@ def _classify(scan, prim, kind, p, named_scene, named_obstacles, UsdGeom, UsdPhy
     if not collider and UsdGeom.Imageable(prim).ComputePurpose() == UsdGeom.Tokens.guide:
         return "ignored", "guide purpose (name it with --prim or --obstacle)"
     if kind in ANALYTIC:
-        return "obstacle", "half-space" if kind == "Plane" else "analytic collider, tessellated conservatively"
+        if kind in ("Plane", "Cube"):
+            return "obstacle", "half-space" if kind == "Plane" else "analytic collider, an exact mesh"
+        return "obstacle", "analytic collider, tessellated conservatively; its exact shape is kept too"
     role = prim.GetAttribute(ROLE)
     role = role.Get() if role.IsValid() else None
     if role == "obstacle":
-        return "obstacle", "penfree obstacle"
+        kept = prim.GetAttribute(SHAPE_ATTRS["source"])
+        return "obstacle", (f"penfree obstacle (mesh of a {kept.Get()}; its exact shape is kept too)"
+                            if kept.IsValid() and kept.HasValue() else "penfree obstacle")
     if not (prim.IsA(UsdGeom.Mesh) or prim.IsA(UsdGeom.BasisCurves)):
         if collider:
             raise InputError(f"prim {p} in {scan.path} has PhysicsCollisionAPI but is a {kind or 'typeless prim'}, "

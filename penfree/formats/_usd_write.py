@@ -8,7 +8,7 @@ from contextlib import suppress
 import numpy as np
 
 from ..errors import InputError
-from ._usd_stage import EXTENSIONS, POINTS64, ROLE, pxr_modules
+from ._usd_stage import EXTENSIONS, POINTS64, ROLE, SHAPE_ATTRS, pxr_modules
 from .atomic import atomic_file
 
 def _chains(edges, n, where):
@@ -109,6 +109,7 @@ def _define_obstacle(stage, ob, codes, extent, mods):
         plane.GetPrim().CreateAttribute(ROLE, Sdf.ValueTypeNames.String, custom=True).Set("obstacle")
         return
     X = np.asarray(ob.positions, dtype=np.float64)
+    frame_codes = codes
     if X.ndim == 2:
         X, codes = X[None], [Usd.TimeCode.Default()]
     if ob.faces is not None and len(ob.faces):
@@ -125,6 +126,35 @@ def _define_obstacle(stage, ob, codes, extent, mods):
         geom.CreateCurveVertexCountsAttr(Vt.IntArray.FromNumpy(counts.astype(np.int32)))
     _set_points(geom, X, codes, Vt, Sdf, path)
     geom.GetPrim().CreateAttribute(ROLE, Sdf.ValueTypeNames.String, custom=True).Set("obstacle")
+    if ob.shape is not None:
+        _set_shape(geom.GetPrim(), ob.shape, frame_codes, mods)
+
+
+def _set_shape(prim, shape, codes, mods):
+    """`shape` as `SHAPE_ATTRS` on the mesh that contains it (its points are world
+    coordinates: the stored transform is the shape's own), time-sampled where it changes."""
+    Gf, Sdf, Tf, Usd, UsdGeom, UsdPhysics, Vt = mods
+    prim.CreateAttribute(SHAPE_ATTRS["source"], Sdf.ValueTypeNames.String, custom=True).Set(str(shape.source))
+    prim.CreateAttribute(SHAPE_ATTRS["axis"], Sdf.ValueTypeNames.Token, custom=True).Set("XYZ"[shape.axis])
+    profile = prim.CreateAttribute(SHAPE_ATTRS["profile"], Sdf.ValueTypeNames.DoubleArray, custom=True)
+    transform = prim.CreateAttribute(SHAPE_ATTRS["transform"], Sdf.ValueTypeNames.Matrix4d, custom=True)
+    P = np.asarray(shape.profile, dtype=np.float64)
+    M = np.asarray(shape.transform, dtype=np.float64)
+    M = np.concatenate([M, np.broadcast_to([[0.0], [0.0], [0.0], [1.0]], M.shape[:-1] + (1,))], axis=-1)  # (.., 4, 4)
+
+    def matrix(m):
+        return Gf.Matrix4d(*[float(v) for v in m.ravel()])
+
+    if P.ndim == 1:
+        profile.Set(Vt.DoubleArray([float(v) for v in P]))
+    else:
+        for p, t in zip(P, codes):
+            profile.Set(Vt.DoubleArray([float(v) for v in p]), t)
+    if M.ndim == 2:
+        transform.Set(matrix(M))
+    else:
+        for m, t in zip(M, codes):
+            transform.Set(matrix(m), t)
 
 
 def _time_codes(seq) -> list:

@@ -4,7 +4,9 @@
 ``faces``, ``weights``, ``components``; attrs ``penfree_format``, ``dt``,
 ``thickness`` (hard minimum separation), ``contact_radius`` (the simulator's contact
 distance; never a separation), ``source``; obstacles in ``obstacles/<name>/`` as
-meshes ``{positions|vertices, faces, edges}`` or half-spaces ``{normal, offset}``.
+meshes ``{positions|vertices, faces, edges}`` or half-spaces ``{normal, offset}``; a mesh
+obstacle that stands for an analytic collider keeps its exact solid in ``shape/`` (attrs
+``source``, ``axis`` X/Y/Z; ``profile (5,) / (T, 5)``, ``transform (4, 3) / (T, 4, 3)``).
 
 Errors name the file and the dataset: ``frames.h5:/positions``.
 
@@ -29,7 +31,7 @@ import numpy as np
 from ..constants import FORMAT_VERSION
 from ..errors import FormatError, InputError
 from ._json import json_default
-from ..sequence import OBSTACLE_FORMS, Obstacle, Sequence
+from ..sequence import OBSTACLE_FORMS, PROFILE_FIELDS, AnalyticShape, Obstacle, Sequence
 from ._registry import register
 from .atomic import atomic_file
 from .frames import Frames, StoredFrames
@@ -252,6 +254,8 @@ def _read_obstacle(g, path, name, where, window=None, T=None) -> Obstacle:
     keys = set(g) if isinstance(g, h5py.Group) else set()
     mesh = [k for k in ("positions", "vertices") if k in keys]
     if isinstance(g, h5py.Group) and "normal" in keys and not mesh:
+        if "shape" in keys:
+            raise InputError(f"a half-space has no analytic shape; found a shape group in {where}:/{path}/shape")
         return _read_half_space(g, path, name, where)
     if not mesh or len(mesh) > 1 or not ({"faces", "edges"} & keys):
         got = "a dataset" if not isinstance(g, h5py.Group) else f"members {sorted(keys) or 'none'}"
@@ -276,7 +280,60 @@ def _read_obstacle(g, path, name, where, window=None, T=None) -> Obstacle:
         positions=pos,
         faces=_read_array(g, "faces", where, "iuf", prefix=path + "/"),
         edges=_read_array(g, "edges", where, "iuf", prefix=path + "/"),
+        shape=read_shape(g, path, where, window, T) if "shape" in keys else None,
     )
+
+
+#: A shape's per-frame datasets: name, the trailing shape of one frame, what that holds.
+_SHAPE_DATASETS = (("profile", (5,), f"({', '.join(PROFILE_FIELDS)})"),
+                   ("transform", (4, 3), "(the linear part's rows, then the translation)"))
+
+
+def read_shape(g, path, where, window=None, T=None) -> AnalyticShape:
+    """The `AnalyticShape` of the obstacle group `g` (``<path>/shape``); `window` slices its
+    per-frame rows as `read_positions` slices frames. Values are `Sequence.validate`'s."""
+    full = f"{path}/shape"
+    sg = g.get("shape")
+    if not isinstance(sg, h5py.Group):
+        raise InputError(f"shape must be a group with attrs source, axis and datasets profile, transform "
+                         f"in {where}:/{full}")
+    axis = decode_attr(sg.attrs["axis"], f"{where}:/{full}:@axis") if "axis" in sg.attrs else None
+    if not isinstance(axis, str) or axis.upper() not in ("X", "Y", "Z"):
+        raise InputError(f"shape attribute axis must be X, Y or Z; got {axis!r} in {where}:/{full}:@axis")
+    source = decode_attr(sg.attrs["source"], f"{where}:/{full}:@source") if "source" in sg.attrs else None
+    if not isinstance(source, str):
+        raise InputError(f"shape attribute source must be a string (e.g. Sphere); got {source!r} "
+                         f"in {where}:/{full}:@source")
+    values = []
+    for key, one, holds in _SHAPE_DATASETS:
+        ds = _dataset(sg, key, where, prefix=full + "/")
+        if ds is None:
+            raise InputError(f"shape needs a dataset {key} {one} or (T, {', '.join(map(str, one))}) {holds} "
+                             f"in {where}:/{full}/{key}")
+        if ds.dtype.kind not in "iuf" or (ds.shape != one and ds.shape[1:] != one):
+            raise InputError(f"shape {key} must be numeric {one} or (T, {', '.join(map(str, one))}) {holds}; "
+                             f"got {ds.shape} {ds.dtype} in {where}:/{full}/{key}")
+        if ds.shape == one or window is None:
+            values.append(ds[()])
+            continue
+        if ds.shape[0] != T:
+            raise InputError(f"shape {key} must be {one} or ({T}, {', '.join(map(str, one))}) {holds}; "
+                             f"got {ds.shape} in {where}:/{full}/{key}")
+        start, stop = frame_window(window, T, where)
+        values.append(ds[start:stop])
+    return AnalyticShape(source=source, axis="XYZ".index(axis.upper()), profile=values[0], transform=values[1])
+
+
+def read_whole_shape(f, name, where, T) -> AnalyticShape:
+    """``obstacles/<name>/shape`` of an open file, every one of its `T` frames, checked as
+    `Sequence.validate` checks it (a merge validates the sequence read in a 2-frame window,
+    then takes the per-frame data whole). The check runs on a one-triangle probe sequence,
+    so that the rule stays in one place (`sequence`)."""
+    shape = read_shape(f[f"obstacles/{name}"], f"obstacles/{name}", where)
+    tri = np.array([[0, 1, 2]])
+    Sequence(positions=np.zeros((T, 3, 3)), faces=tri, origin=where,
+             obstacles=[Obstacle(name, positions=np.eye(3), faces=tri, shape=shape)]).validate()
+    return shape
 
 
 def _read_half_space(g, path, name, where) -> Obstacle:
@@ -447,6 +504,12 @@ def write_to_h5(f: h5py.File, seq: Sequence) -> None:
             a = getattr(ob, name)
             if a is not None and len(a):
                 g.create_dataset(name, data=np.asarray(a, dtype=np.int64))
+        if ob.shape is not None:
+            sg = g.create_group("shape")
+            sg.attrs["source"] = encode_attr(str(ob.shape.source))
+            sg.attrs["axis"] = "XYZ"[ob.shape.axis]
+            sg.create_dataset("profile", data=np.asarray(ob.shape.profile, dtype=np.float64))
+            sg.create_dataset("transform", data=np.asarray(ob.shape.transform, dtype=np.float64))
 
 
 def write_hdf5(path: str, seq: Sequence, overwrite: bool = False) -> None:

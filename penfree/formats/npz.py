@@ -4,7 +4,10 @@ Optional arrays: ``faces``, ``edges``, ``weights``, ``components``, 0-d
 ``thickness`` (hard minimum separation), ``contact_radius`` (the simulator's contact
 distance), ``dt``, ``source``, ``attrs_json`` (other attributes as one JSON string), and
 obstacles as ``obstacles/<name>/positions`` (or ``vertices``) with ``.../faces`` or
-``.../edges``, or half-spaces ``obstacles/<name>/normal`` (3,) with ``.../offset``.
+``.../edges``, or half-spaces ``obstacles/<name>/normal`` (3,) with ``.../offset``; a mesh
+obstacle's exact analytic solid as ``obstacles/<name>/shape/{source, axis}`` (0-d strings,
+axis X/Y/Z) with ``.../shape/profile`` (5,) / (T, 5) and ``.../shape/transform`` (4, 3) /
+(T, 4, 3), as the HDF5 layout's ``shape`` group.
 Archives are read with ``allow_pickle=False``.
 
 >>> import numpy as np
@@ -23,7 +26,7 @@ import zlib
 import numpy as np
 
 from ..errors import FormatError, InputError
-from ..sequence import OBSTACLE_FORMS, Obstacle, Sequence
+from ..sequence import OBSTACLE_FORMS, AnalyticShape, Obstacle, Sequence
 from ._registry import register
 from .atomic import atomic_file
 from ._json import json_default
@@ -124,7 +127,10 @@ def _read_obstacle(z, name, path) -> Obstacle:
     p = f"obstacles/{name}/"
     keys = {k[len(p):] for k in z.files if k.startswith(p)}
     mesh = [k for k in ("positions", "vertices") if k in keys]
+    shaped = any(k.startswith("shape/") for k in keys)
     if "normal" in keys and not mesh and "offset" in keys:
+        if shaped:
+            raise InputError(f"a half-space has no analytic shape; found arrays {p}shape/... in {path}:/{p}shape")
         return Obstacle(name, normal=z[p + "normal"], offset=_scalar(z, p + "offset", path))
     if len(mesh) != 1 or not ({"faces", "edges"} & keys):
         raise FormatError(f"obstacle {name!r} has an unknown form (arrays {sorted(keys) or 'none'}); "
@@ -133,7 +139,31 @@ def _read_obstacle(z, name, path) -> Obstacle:
         name, z[p + mesh[0]],
         faces=z[p + "faces"] if p + "faces" in z.files else None,
         edges=z[p + "edges"] if p + "edges" in z.files else None,
+        shape=_read_shape(z, p + "shape/", path) if shaped else None,
     )
+
+
+def _read_shape(z, p, path) -> AnalyticShape:
+    """``<p>{source, axis, profile, transform}``; values are checked by `Sequence.validate`."""
+    text = {}
+    for key in ("source", "axis"):
+        a = z[p + key] if p + key in z else None
+        if a is None or a.shape != () or a.dtype.kind != "U":
+            got = "nothing" if a is None else f"{a.shape} {a.dtype}"
+            raise InputError(f"shape {key} must be a 0-d string{' X, Y or Z' if key == 'axis' else ''}; "
+                             f"got {got} in {path}:/{p}{key}")
+        text[key] = str(a)
+    if text["axis"].upper() not in ("X", "Y", "Z"):
+        raise InputError(f"shape axis must be X, Y or Z; got {text['axis']!r} in {path}:/{p}axis")
+    arrays = {}
+    for key, one in (("profile", (5,)), ("transform", (4, 3))):
+        a = z[p + key] if p + key in z else None
+        if a is None or a.dtype.kind not in "iuf" or (a.shape != one and a.shape[1:] != one):
+            got = "nothing" if a is None else f"{a.shape} {a.dtype}"
+            raise InputError(f"shape {key} must be numeric {one} or (T, {', '.join(map(str, one))}); got {got} "
+                             f"in {path}:/{p}{key}")
+        arrays[key] = a
+    return AnalyticShape(text["source"], "XYZ".index(text["axis"].upper()), arrays["profile"], arrays["transform"])
 
 
 def write_npz(path: str, seq: Sequence, overwrite: bool = False) -> None:
@@ -157,6 +187,11 @@ def write_npz(path: str, seq: Sequence, overwrite: bool = False) -> None:
         for name in ("faces", "edges"):
             if getattr(ob, name) is not None and len(getattr(ob, name)):
                 arrays[f"obstacles/{ob.name}/{name}"] = getattr(ob, name)
+        if ob.shape is not None:
+            p = f"obstacles/{ob.name}/shape/"
+            arrays[p + "source"], arrays[p + "axis"] = np.str_(ob.shape.source), np.str_("XYZ"[ob.shape.axis])
+            arrays[p + "profile"] = np.asarray(ob.shape.profile, dtype=np.float64)
+            arrays[p + "transform"] = np.asarray(ob.shape.transform, dtype=np.float64)
     with atomic_file(path, overwrite) as tmp:
         # A file object, not a name: savez appends ".npz" to names that lack it.
         with open(tmp, "wb") as fh:

@@ -466,8 +466,10 @@ def deformed_sequence(result: DeformResult) -> Sequence:
         raise InputError(f"--deformed needs at least 2 steps to make a sequence; got {deformed.shape[0]} "
                          f"in {result.origin}:/steps/deformed")
     frames = np.asarray(result.steps["frame"], dtype=np.int64)
-    obstacles = [ob if ob.is_half_space or np.ndim(ob.positions) == 2
-                 else replace(ob, positions=ob.positions[frames]) for ob in seq.obstacles]
+    obstacles = [ob if ob.is_half_space else
+                 replace(ob, positions=ob.positions if np.ndim(ob.positions) == 2 else ob.positions[frames],
+                         shape=None if ob.shape is None else ob.shape.take(frames))
+                 for ob in seq.obstacles]
     out = Sequence(positions=deformed, edges=seq.edges, faces=seq.faces, weights=seq.weights,
                    components=seq.components, thickness=seq.thickness, contact_radius=seq.contact_radius,
                    dt=seq.dt, obstacles=obstacles,

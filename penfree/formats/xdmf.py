@@ -8,7 +8,10 @@ same Topology DataItem; the arrays live in ``out.xdmf.h5`` beside it (not
 ``out.h5``, which is often the very input being converted). Obstacles are
 further Temporal collections named ``obstacle:<name>``; half-space obstacles
 (no grid to draw), thickness, contact radius, dt, source and other attributes sit in an ``<Information Name="penfree">`` JSON
-element that viewers ignore.
+element that viewers ignore; a mesh obstacle's exact analytic solid sits in an
+``<Information Name="penfree_shape">`` JSON element inside its collection (``source``,
+``axis`` X/Y/Z, ``profile`` 5 / T x 5 numbers, ``transform`` 4 x 3 / T x 4 x 3, as HDF5's
+``shape`` group).
 
 The reader takes these files, hand-written ones (XDMF 2 or 3 spelling; frames
 in ``<Time>`` order when every grid has one, Topology ``BaseOffset`` honoured,
@@ -30,7 +33,7 @@ import h5py
 import numpy as np
 
 from ..errors import FormatError, InputError
-from ..sequence import Obstacle, Sequence
+from ..sequence import AnalyticShape, Obstacle, Sequence
 from ._registry import register
 from .atomic import atomic_file
 from ._json import json_default
@@ -39,6 +42,8 @@ from ._mesh_file import topology_from_cells
 
 MAIN_GRID = "penfree"
 OBSTACLE_PREFIX = "obstacle:"
+#: Name of the Information element holding an obstacle collection's analytic shape (JSON).
+SHAPE_INFO = "penfree_shape"
 
 
 def heavy_path(path: str) -> str:
@@ -122,6 +127,7 @@ def _collection(domain, f, h5name, name, prefix, positions, faces, edges, times,
         for key, a in node_data:
             att = ET.SubElement(grid, "Attribute", Name=key, AttributeType="Scalar", Center="Node")
             _data_item(att, f"{h5name}:/{prefix}/{key}", a.shape, a.dtype)
+    return coll
 
 
 def write_xdmf(path: str, seq: Sequence, overwrite: bool = False) -> None:
@@ -154,8 +160,13 @@ def write_xdmf(path: str, seq: Sequence, overwrite: bool = False) -> None:
             for k, ob in enumerate(seq.obstacles):
                 if ob.is_half_space:  # no grid: carried in the penfree Information
                     continue
-                _collection(domain, f, h5name, OBSTACLE_PREFIX + ob.name, f"obstacle_{k}",
-                            np.asarray(ob.positions), ob.faces, ob.edges, times)
+                coll = _collection(domain, f, h5name, OBSTACLE_PREFIX + ob.name, f"obstacle_{k}",
+                                   np.asarray(ob.positions), ob.faces, ob.edges, times)
+                if ob.shape is not None:
+                    coll.insert(0, ET.Element("Information", Name=SHAPE_INFO, Value=json.dumps({
+                        "source": str(ob.shape.source), "axis": "XYZ"[ob.shape.axis],
+                        "profile": np.asarray(ob.shape.profile, dtype=np.float64).tolist(),
+                        "transform": np.asarray(ob.shape.transform, dtype=np.float64).tolist()})))
         ET.indent(root)
         with open(tmp_xml, "w", encoding="utf-8") as fh:
             fh.write('<?xml version="1.0" ?>\n<!DOCTYPE Xdmf SYSTEM "Xdmf.dtd" []>\n')
@@ -358,13 +369,41 @@ def _read_xdmf(path: str) -> Sequence:
             if c is main or not name.startswith(OBSTACLE_PREFIX):
                 continue
             pos, e, f, _ = _read_collection(c, items, path, f"collection {name}")
-            seq.obstacles.append(Obstacle(name[len(OBSTACLE_PREFIX):], pos, faces=f, edges=e))
+            el = c.find(f"Information[@Name='{SHAPE_INFO}']")
+            shape = None if el is None else _read_shape(el, path, f"collection {name}")
+            seq.obstacles.append(Obstacle(name[len(OBSTACLE_PREFIX):], pos, faces=f, edges=e, shape=shape))
         for hs in info.get("half_spaces") or []:
             if not isinstance(hs, dict) or not {"name", "normal", "offset"} <= set(hs):
                 raise FormatError(f"penfree Information half_spaces entries must be {{name, normal, offset}}; "
                                   f"got {hs!r} in {path}")
             seq.obstacles.append(Obstacle(str(hs["name"]), normal=np.asarray(hs["normal"]), offset=hs["offset"]))
     return seq
+
+
+def _read_shape(el, path, what) -> AnalyticShape:
+    """An obstacle collection's ``<Information Name="penfree_shape">``; values are checked by
+    `Sequence.validate`."""
+    where = f"the {SHAPE_INFO} Information of {what} in {path}"
+    try:
+        d = json.loads(el.get("Value") or "")
+    except ValueError:
+        d = None
+    if not isinstance(d, dict) or not {"source", "axis", "profile", "transform"} <= set(d):
+        raise FormatError(f"{where} must hold a JSON object {{source, axis, profile, transform}}")
+    if d["axis"] not in ("X", "Y", "Z") or not isinstance(d["source"], str):
+        raise InputError(f"shape axis must be X, Y or Z and source a string; got axis {d['axis']!r}, "
+                         f"source {d['source']!r} in {where}")
+    arrays = {}
+    for key, one in (("profile", (5,)), ("transform", (4, 3))):
+        try:
+            a = np.asarray(d[key], dtype=np.float64)
+        except (TypeError, ValueError):
+            a = None
+        if a is None or (a.shape != one and a.shape[1:] != one):
+            raise InputError(f"shape {key} must be numbers {one} or (T, {', '.join(map(str, one))}); "
+                             f"got {d[key]!r:.60} in {where}")
+        arrays[key] = a
+    return AnalyticShape(d["source"], "XYZ".index(d["axis"]), arrays["profile"], arrays["transform"])
 
 
 def _read_meshio_series(path: str) -> Sequence:

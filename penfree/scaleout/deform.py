@@ -78,6 +78,7 @@ def merge_task(path, out_path, parts, options):
 
     from ..formats import read_sequence
     from ..formats.frames import StoredFrames
+    from ..formats.hdf5 import read_whole_shape
 
     steps, groups = merge_partials(sorted(parts), stream=True)
     seq = read_sequence(path, format=options.get("format"), frame_window=(0, 2))  # all but the frames, validated
@@ -88,6 +89,9 @@ def merge_task(path, out_path, parts, options):
                 g = f[f"obstacles/{ob.name}"]
                 name = "positions" if "positions" in g else "vertices"
                 ob.positions = StoredFrames(g[name], path, f"obstacles/{ob.name}/{name}")
+            if ob.shape is not None and (ob.shape.profile.ndim == 2 or ob.shape.transform.ndim == 3):
+                # per frame too, read for 2 frames above: a few numbers a frame, read whole
+                ob.shape = read_whole_shape(f, ob.name, path, seq.positions.shape[0])
         _write_output(path, out_path, seq, steps, groups, options)
     for p in parts:  # written by this run's range tasks
         os.unlink(p)

@@ -147,9 +147,12 @@ GOOD = np.zeros((3, 4, 3))
     (lambda p: _write(p, positions=GOOD, attrs={"penfree_format": 2}), FormatError, "unsupported penfree_format 2 in {p}:@penfree_format"),
     (lambda p: _write(p, positions=GOOD, attrs={"thickness": "thin"}), InputError, "thickness must be a finite number"),
     (lambda p: _write(p, positions=np.array([[[b"a"] * 3] * 4] * 2)), FormatError, "positions must be float32 or float64"),
+    (lambda p: _write(p, positions=GOOD, **{"obstacles/floor/normal": [0.0, 0, 1], "obstacles/floor/offset": 0.0,
+                                           "obstacles/floor/shape/profile": np.ones(5)}), InputError,
+     "a half-space has no analytic shape; found a shape group in {p}:/obstacles/floor/shape"),
 ], ids=["not-hdf5", "missing-positions", "wrong-shape", "one-frame", "inf-frame-1", "index-out-of-range",
         "negative-index", "uint64-index-past-int64", "faces-4-columns", "weights-length", "negative-weights", "format-version-2",
-        "text-thickness", "text-positions"])
+        "text-thickness", "text-positions", "shape-on-half-space"])
 def test_bad_inputs(tmp_path, build, exc, expect):
     p = str(tmp_path / "bad.h5")
     build(p)

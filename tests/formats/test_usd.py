@@ -381,6 +381,9 @@ def test_sphere_and_capsule_colliders_contain_the_transformed_shape(tmp_path):
         pts = local[ob.name] @ M[:3, :3] + M[3, :3]
         hull = ConvexHull(ob.positions)
         assert (pts @ hull.equations[:, :3].T + hull.equations[:, 3] <= 1e-12).all(), ob.name
+        # the exact solid beside the mesh: the same transform (test_obstacle_shapes checks the profiles)
+        assert ob.shape.source == {"Ball": "Sphere", "Pill": "Capsule"}[ob.name]
+        assert np.array_equal(ob.shape.transform, np.vstack([M[:3, :3], M[3, :3]])), ob.name
 
 
 def test_plane_becomes_half_space(tmp_path):

@@ -68,17 +68,15 @@ def test_cube_is_exact():
     assert len(np.unique(np.round(n, 12), axis=0)) == 6
 
 
-@pytest.mark.xfail(strict=True, reason="known gap (session 32): a primitive that starts between an analytic "
-                   "collider and its containing tessellation is checked against the tessellation only, "
-                   "and can be moved into the shape")
 def test_a_triangle_starting_inside_the_sphere_s_tessellation_stays_outside_the_sphere():
     """A 0.2 mm triangle 0.5 mm, then 0.2 mm above a Sphere collider of radius 3 cm, under
     a vertex of its icosphere (which lies 0.54 mm above the sphere): the triangle is inside
     the tessellation, outside the shape. The constant-velocity prediction puts it 0.1 mm
     inside the sphere. Safe against the tessellation (no face of it is crossed) is not
-    safe against the shape here: `deform` writes the step into the sphere."""
+    safe against the shape here; the obstacle's exact solid (`AnalyticShape`) keeps the
+    triangle out (before it, `deform` wrote the step 0.1 mm into the sphere)."""
     from penfree.core.pipeline.deform import deform_sequence
-    from penfree.sequence import Obstacle, Sequence
+    from penfree.sequence import AnalyticShape, Obstacle, Sequence
 
     R = 0.03
     V, F = shapes.sphere(R)
@@ -88,8 +86,9 @@ def test_a_triangle_starting_inside_the_sphere_s_tessellation_stays_outside_the_
     b = np.cross(n, a)
     tri = n * R + 1e-4 * np.array([a, -a + b, -a - b])
     frames = np.array([tri + n * 5e-4, tri + n * 2e-4, tri - n * 1e-4])
+    ball = AnalyticShape("Sphere", 2, np.array([0.0, 0.0, R, 0.0, R]), np.vstack([np.eye(3), np.zeros(3)]))
     seq = Sequence(positions=frames, faces=np.array([[0, 1, 2]]),
-                   obstacles=[Obstacle("ball", positions=V, faces=F)]).validate()
+                   obstacles=[Obstacle("ball", positions=V, faces=F, shape=ball)]).validate()
     out = deform_sequence(seq, model="affine", thickness=0.0).steps
     k = list(out["frame"]).index(1)  # the step that starts outside the sphere
     assert np.linalg.norm(frames[1], axis=1).min() > R

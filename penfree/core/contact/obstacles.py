@@ -10,7 +10,10 @@ section 5). Two forms (`penfree.sequence.Obstacle`):
   comparisons are decided exactly: in floating point with a rigorous error bound,
   and with rational arithmetic for the few vertices inside that bound;
 - meshes: the conservative CCD of `penfree.core.verify` (scene against obstacle
-  primitives whose swept boxes overlap, i.e. within reach of the step's motion).
+  primitives whose swept boxes overlap, i.e. within reach of the step's motion);
+- analytic colliders (a mesh with an `penfree.sequence.AnalyticShape`): their exact
+  solid by supporting planes (`penfree.core.contact.solids`); the mesh that contains
+  it stands in for it only where a mesh is needed (the ipctk client's collision mesh).
 
 `as_verify_obstacles` turns a sequence's obstacles into the argument of
 `verify.verify_step`. The obstacle terms of the OGC bounds are
@@ -138,11 +141,20 @@ def half_space_verdict(x_t0, x_t1, normal, offset, thickness, pre_existing=False
 
 
 def as_verify_obstacles(obstacles, s0, s1):
-    """``(list, names)`` for `verify_step`: mesh obstacles at frames s0 -> s1, half-spaces as is."""
+    """``(list, names)`` for `verify_step`: mesh obstacles at frames s0 -> s1, half-spaces as is,
+    analytic colliders as their exact solid (`penfree.core.contact.solids`) at s0 -> s1.
+
+    An analytic collider's mesh only contains the shape: checked against it, a primitive
+    resting between the shape and the mesh is a pre-existing crossing that freezes the
+    step, and one that starts inside the mesh is not kept out of the shape."""
     out = []
     for ob in obstacles:
         if ob.is_half_space:
             out.append((ob.normal, ob.offset))
+        elif ob.shape is not None:  # an analytic collider: its exact solid, not the mesh around it
+            from .solids import SolidFrames
+
+            out.append(SolidFrames(ob.shape.axis, ob.shape.at(s0), ob.shape.at(s1)))
         else:
             out.append((ob.frame(s0), ob.frame(s1), ob.faces, ob.edges))
     return out, [ob.name for ob in obstacles]

@@ -63,13 +63,19 @@ def obstacle_separation(x, E, F, obstacles, radius, s=0):
         ``min(radius, terms)``: a half-space gives the vertex's distance to its plane
         (0 on or behind it); a mesh the terms of SPEC section 7 between scene and
         obstacle primitives (scene vertex - obstacle face, obstacle vertex - scene face
-        folded into the face's vertices, edge - edge), on the scene's side only.
+        folded into the face's vertices, edge - edge), on the scene's side only; an
+        analytic collider the same terms against its exact solid (lower bounds,
+        `penfree.core.contact.solids.solid_separation`).
     """
     n = x.shape[0]
     d = np.full(n, float(radius))
     for ob in obstacles or ():
         if ob.is_half_space:
             d = np.minimum(d, _half_space_separation(x, E, F, ob))
+        elif ob.shape is not None:
+            from ..contact.solids import solid_separation
+
+            d = np.minimum(d, solid_separation(x, E, F, ob.shape, radius, s))
         else:
             d = np.minimum(d, _mesh_separation(x, E, F, ob, radius, s))
     return d

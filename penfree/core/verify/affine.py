@@ -85,7 +85,7 @@ def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0
     are not moved by A: steps with obstacles always use the full CCD.
     """
     thickness = check_thickness(thickness)
-    scene, _, _ = _bodies(x_t0, x_def, edges, faces, None)
+    scene = _bodies(x_t0, x_def, edges, faces, None)[0]
     A = np.asarray(A, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     if A.shape != (3, 3) or b.shape != (3,):

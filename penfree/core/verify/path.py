@@ -60,6 +60,7 @@ class _Body:
         n = self.x_t0.shape[0]
         self.F = as_topology(faces, 3, n, f"{name} faces") if faces is not None else np.zeros((0, 3), np.int64)
         E = as_topology(edges, 2, n, f"{name} edges") if edges is not None else np.zeros((0, 2), np.int64)
+        self.E_given = E  # the edges as given (a face's edges among them too, or not)
         self.E = scene_edges(E, self.F)
         # every vertex, also of a scene without primitives (particles still meet obstacle faces)
         self.V = np.arange(n, dtype=np.int64)
@@ -285,10 +286,16 @@ def _start_check(scene, obstacles, self_pairs=True):
 
 
 def _bodies(x_t0, x_t1, edges, faces, obstacles):
-    """The scene, its mesh obstacles ``[(name, _Body)]`` and half-spaces ``[(name, normal, offset)]``."""
+    """The scene, its mesh obstacles ``[(name, _Body)]``, half-spaces ``[(name, normal, offset)]``
+    and analytic solids ``[(name, SolidFrames)]``."""
+    from ..contact.solids import SolidFrames
+
     scene = _Body(x_t0, x_t1, edges, faces, "scene")
-    obs, halves = [], []
+    obs, halves, solids = [], [], []
     for k, ob in enumerate(obstacles or []):
+        if isinstance(ob, SolidFrames):
+            solids.append((str(k), ob))
+            continue
         if len(ob) == 2:
             normal = np.asarray(ob[0], dtype=np.float64)
             if normal.shape != (3,) or not np.isfinite(normal).all() or not normal.any():
@@ -302,7 +309,7 @@ def _bodies(x_t0, x_t1, edges, faces, obstacles):
         if fo is None and eo is None:
             raise InputError(f"obstacles[{k}] needs faces or edges; got neither")
         obs.append((str(k), _Body(p0, p1, eo, fo, f"obstacles[{k}]")))
-    return scene, obs, halves
+    return scene, obs, halves, solids
 
 
 def _half_spaces(halves, scene, thickness, start, path, pre):
@@ -317,6 +324,35 @@ def _half_spaces(halves, scene, thickness, start, path, pre):
             if col is not None and len(idx):
                 ij = np.stack([idx, np.zeros_like(idx)], axis=1)
                 col.add(kind, ij, np.ones(len(idx), np.int8), np.zeros(len(idx)), np.zeros(len(idx)))
+        path.sep = min(path.sep, sep)
+
+
+def _scene_simplices(scene):
+    """The scene's primitives for a solid: faces, the edges given (a face covers its own
+    edges, so only the extra ones matter; a repeated one is checked twice), the vertices
+    of neither."""
+    F, E = scene.F, scene.E_given
+    used = np.zeros(len(scene.V), bool)
+    used[F.ravel()] = True
+    used[E.ravel()] = True
+    return (("sf", F), ("se", E), ("sv", np.flatnonzero(~used)[:, None]))
+
+
+def _solids(solids, scene, thickness, start, path, pre):
+    """Exact-solid verdicts of the scene's primitives into the collectors (pair j is 0)."""
+    from ..contact.solids import solid_verdict
+
+    if not solids:
+        return
+    simplices = _scene_simplices(scene)
+    for name, solid in solids:
+        verdicts, sep = solid_verdict(scene.x_t0, scene.x_t1, [S for _, S in simplices], solid, thickness,
+                                      pre_existing=pre is not None)
+        for (tag, _), found in zip(simplices, verdicts):
+            for col, idx in zip((start, path, pre), found):
+                if col is not None and len(idx):
+                    ij = np.stack([idx, np.zeros_like(idx)], axis=1)
+                    col.add(f"{tag}:{name}", ij, np.ones(len(idx), np.int8), np.zeros(len(idx)), np.zeros(len(idx)))
         path.sep = min(path.sep, sep)
 
 
@@ -351,9 +387,10 @@ def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=
         Hard minimum separation: pairs closer than it (or touching, at 0) violate.
     obstacles : list
         Each either a mesh ``(positions_t0 (M, 3), positions_t1 (M, 3), faces or None,
-        edges or None)`` moving linearly, or a half-space ``(normal (3,), offset)``
-        (free side ``normal . x > offset``, decided exactly per vertex), checked
-        against the scene only.
+        edges or None)`` moving linearly, a half-space ``(normal (3,), offset)``
+        (free side ``normal . x > offset``, decided exactly per vertex), or an
+        analytic solid (`penfree.core.contact.solids.SolidFrames`, decided per
+        primitive by a supporting plane), checked against the scene only.
     max_pairs : int
         How many violating pairs to list (counts are always complete).
     obstacle_names : list of str, optional
@@ -398,11 +435,12 @@ def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=
     """
     thickness = check_thickness(thickness)
     max_pairs = int(max_pairs)
-    scene, obs, halves = _bodies(x_t0, x_t1, edges, faces, obstacles)
+    scene, obs, halves, solids = _bodies(x_t0, x_t1, edges, faces, obstacles)
     if obstacle_names is not None:
         names = [str(nm) for nm in obstacle_names]
         obs = [(names[int(k)], b) for k, b in obs]
         halves = [(names[int(k)], nv, o) for k, nv, o in halves]
+        solids = [(names[int(k)], sd) for k, sd in solids]
     checked = _start_check(scene, obs, self_pairs) if start_intersections else _Collector()
     start, pre = (_Collector(), checked) if pre_existing else (checked, None)
     path = _Collector()
@@ -411,6 +449,7 @@ def verify_step(x_t0, x_t1, *, edges=None, faces=None, thickness=0.0, obstacles=
     for name, ob in obs:
         _pairs_between(path, scene, ob, name, thickness, start=None if pre_existing else start, pre=pre)
     _half_spaces(halves, scene, thickness, None if pre_existing else start, path, pre)
+    _solids(solids, scene, thickness, None if pre_existing else start, path, pre)
     start_list, n_start = start.first(max_pairs)
     pairs, n_viol = path.first(max_pairs)
     pre_list, n_pre = pre.first(max_pairs) if pre is not None else ([], 0)

@@ -24,7 +24,7 @@ SAMPLES = Path(__file__).resolve().parents[3] / "samples"
 
 def _lists(x, edges, faces, skin=None):
     """The verify lists; a fixed skin forces a kept list (the automatic one may answer fresh)."""
-    scene, _, _ = _bodies(x, x, edges, faces, None)
+    scene = _bodies(x, x, edges, faces, None)[0]
     if skin is None:
         return result_lists(scene.E, scene.F)
     return NeighbourList(scene.E, scene.F, edge_face=True, skin=skin)
