@@ -45,7 +45,9 @@ def _lines(d: dict) -> list:
             rows.append((f"obstacle {ob['name']}", f"half-space normal {_fmt(ob['normal'])}, offset {_fmt(ob['offset'])}"))
             continue
         topo = f"{ob['faces']} faces" if ob["faces"] else f"{ob['edges']} edges"
-        rows.append((f"obstacle {ob['name']}", f"{ob['vertices']} vertices, {topo}, {'static' if ob['static'] else 'moving'}"))
+        solid = f"; exact solid: {ob['solid']} (checked instead of the mesh)" if ob.get("solid") else ""
+        rows.append((f"obstacle {ob['name']}",
+                     f"{ob['vertices']} vertices, {topo}, {'static' if ob['static'] else 'moving'}{solid}"))
     res = d.get("result")
     if res is not None:
         counts = lambda c: ", ".join(f"{k} x{v}" for k, v in c.items()) or "-"  # noqa: E731

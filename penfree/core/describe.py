@@ -121,6 +121,8 @@ def _obstacle(ob) -> dict:
         "faces": 0 if ob.faces is None else int(len(ob.faces)),
         "edges": 0 if ob.edges is None else int(len(ob.edges)),
         "static": ob.positions.ndim == 2,
+        # an analytic collider: the mesh contains it; deform and verify check the solid
+        "solid": None if ob.shape is None else ob.shape.source,
     }
 
 

@@ -105,3 +105,11 @@ def test_verify_of_a_result_moved_into_the_sphere_fails(tmp_path):
             f["steps/b"][...] = b
     r = _run("verify", out, "--json")
     assert r.exit_code == 1, r.output
+
+
+def test_info_names_the_solid(tmp_path):
+    src = _write(tmp_path / "in.h5", _frames([5e-4, 2e-4]))
+    r = _run("info", src)
+    assert r.exit_code == 0 and "exact solid: Sphere" in r.output, r.output
+    r = _run("info", _write(tmp_path / "mesh.h5", _frames([5e-4, 2e-4]), shape=False), "--json")
+    assert json.loads(r.output)["obstacles"][0]["solid"] is None

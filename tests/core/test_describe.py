@@ -24,7 +24,7 @@ def test_triangle_scene_values():
     assert d["motion"]["max"] == {"min": 1.0, "median": 2.0, "max": 3.0}
     assert (d["thickness"], d["dt"]) == (pytest.approx(0.1), 0.5)
     assert d["obstacles"] == [{"name": "floor", "half_space": False, "vertices": 3, "faces": 1, "edges": 0,
-                               "static": True}]
+                               "static": True, "solid": None}]
 
 
 def test_motion_against_brute_force():

@@ -185,8 +185,9 @@ _PHI = 0.5 * (5.0 ** 0.5 - 1.0)
 
 def _edge_minimum(frame, axis, A, B):
     """The point of each segment A -> B (K, 3) where the solid's local signed distance (a
-    convex function along it) is smallest, by golden section: ``(p, q, normal)`` with q
-    the solid's point for p and its outward normal there (a world direction)."""
+    convex function along it) is smallest, by golden section: ``(p, q, normal, inside)``
+    with q the solid's point for p, its outward normal there (a world direction), and
+    whether p lies in the solid (a proof of contact)."""
     _, _, c, Linv = frame
     yA, yB = (A - c) @ Linv, (B - c) @ Linv
     lo, hi = np.zeros(len(A)), np.ones(len(A))
@@ -212,45 +213,59 @@ def _edge_minimum(frame, axis, A, B):
         better = g(at_end) < g(t)
         t = np.where(better, at_end, t)
     p = A + t[:, None] * (B - A)
-    q, normal, _ = closest_points(frame, axis, p)
-    return p, q, normal
+    q, normal, g = closest_points(frame, axis, p)
+    return p, q, normal, g <= 0.0
 
 
 def full_directions(frame, axis, P):
     """Candidate directions per primitive (K, k, 3) that are exact up to the search's
     precision: the solid's normal at the point of each edge nearest to it (golden
     section: the local signed distance is convex along an edge), and for triangles the
-    face normal (exact when the closest point lies inside the face). Also returns an
-    upper bound of each primitive's distance: |p - q| of those pairs, and for a
-    triangle the solid's extreme point against the face, when it projects inside."""
+    face normal (exact when the closest point lies inside the face).
+
+    Returns
+    -------
+    directions : list of (K, 3)
+    upper : (K,)
+        An upper bound of each primitive's distance: |p - q| of the edges' pairs, and for
+        a triangle the solid's point nearest its plane against its foot there, when the
+        foot lies inside the triangle.
+    touching : (K,) bool
+        A proof that the primitive touches or enters the solid: a point of it (on an
+        edge, or that foot) lies in the solid.
+    """
     k = P.shape[1]
     if k == 1:
-        q, normal, _ = closest_points(frame, axis, P[:, 0])
-        return [normal, P[:, 0] - q], np.linalg.norm(P[:, 0] - q, axis=1)
-    out, upper, nearest = [], np.full(len(P), np.inf), None
+        q, normal, g = closest_points(frame, axis, P[:, 0])
+        return [normal, P[:, 0] - q], np.linalg.norm(P[:, 0] - q, axis=1), g <= 0.0
+    out, upper, touching, nearest = [], np.full(len(P), np.inf), np.zeros(len(P), bool), None
     for i, j in ((0, 1),) if k == 2 else ((0, 1), (1, 2), (2, 0)):
-        p, q, normal = _edge_minimum(frame, axis, P[:, i], P[:, j])
+        p, q, normal, inside = _edge_minimum(frame, axis, P[:, i], P[:, j])
         out.append(normal)
         upper = np.minimum(upper, np.linalg.norm(p - q, axis=1))
+        touching |= inside
         nearest = q if nearest is None else nearest
     if k == 3:
-        f = _face_normals(P, P.mean(axis=1) - nearest)
+        f = _face_normals(P, P.mean(axis=1) - nearest)  # from the solid toward the face
         out.append(f)
-        s = _support_points(frame, axis, -f)  # the solid's point deepest toward the face
+        s = _support_points(frame, axis, f)  # the solid's point reaching farthest toward the face
         ff = np.einsum("ij,ij->i", f, f)
         foot = s + (np.einsum("ij,ij->i", P[:, 0] - s, f) / np.where(ff > 0, ff, 1.0))[:, None] * f
-        inside = np.ones(len(P), bool)
+        over = ff > 0
         for i in range(3):
             e, w = P[:, (i + 1) % 3] - P[:, i], foot - P[:, i]
-            inside &= np.einsum("ij,ij->i", np.cross(e, w), f) >= 0
-        upper = np.where(inside & (ff > 0), np.minimum(upper, np.linalg.norm(foot - s, axis=1)), upper)
-    return out, upper
+            over &= np.einsum("ij,ij->i", np.cross(e, w), f) >= 0
+        upper = np.where(over, np.minimum(upper, np.linalg.norm(foot - s, axis=1)), upper)
+        _, _, g = closest_points(frame, axis, foot)
+        touching |= over & (g <= 0.0)
+    return out, upper, touching
 
 
-def _plane_gaps(frame, axis, P, n, thickness):
-    """``(d, err, |n|)``: ``d = min_k (n . P_k) - h_S(n)`` per primitive and its rounding bound."""
+def _plane_gaps(frame, axis, P, n, thickness, support=None):
+    """``(d, err, |n|)``: ``d = min_k (n . P_k) - h_S(n)`` per primitive and its rounding bound
+    (`support`: ``_support(frame, axis, n)`` when known)."""
     nn = np.sqrt(np.einsum("ij,ij->i", n, n))
-    h, err = _support(frame, axis, n)
+    h, err = _support(frame, axis, n) if support is None else support
     d = np.einsum("ikj,ij->ik", P, n).min(axis=1) - h
     return d, err + _REL * nn * (3.0 * np.abs(P).max(axis=(1, 2)) + thickness), nn
 
@@ -277,8 +292,9 @@ class _Planes:
     def add(self, rows, solid, P0, P1, n, thickness):
         n = np.where((np.abs(n).max(axis=1) > 0)[:, None], n, (0.0, 0.0, 1.0))
         with np.errstate(invalid="ignore", over="ignore"):
-            d0, e0, nn = _plane_gaps(solid.ends[0], solid.axis, P0, n, thickness)
-            d1, e1, _ = _plane_gaps(solid.ends[1], solid.axis, P1, n, thickness)
+            sup = _support(solid.ends[0], solid.axis, n)
+            d0, e0, nn = _plane_gaps(solid.ends[0], solid.axis, P0, n, thickness, sup)
+            d1, e1, _ = _plane_gaps(solid.ends[1], solid.axis, P1, n, thickness, sup if solid.static else None)
             hn = thickness * nn
             c0, c1 = d0 - hn > e0, d1 - hn > e1
             f0, f1 = d0 > e0, d1 > e1
@@ -324,11 +340,12 @@ def solid_verdict(x_t0, x_t1, simplices, solid: SolidFrames, thickness, pre_exis
     the solid at both ends. With `pre_existing`, a primitive that does not move
     (against a solid that does not) always passes, so the step ``x_def = x`` does;
     one that provably starts within the thickness (a point of it and a point of the
-    solid closer than that) only has to stay strictly outside; one that starts
-    touching or inside (pre-existing) must not go deeper: along the direction that
-    shows it least deep, its vertices' smallest gap to the supporting plane must not
-    shrink (for a half-space, the rule of `half_space_verdict`); every other moving
-    primitive has to pass.
+    solid closer than that) only has to stay strictly outside; one that provably
+    starts touching or inside (a point of it in the solid: pre-existing) must not go
+    deeper: along the direction that shows it least deep, its vertices' smallest gap
+    to the supporting plane must not shrink (for a half-space, the rule of
+    `half_space_verdict`); every other moving primitive has to pass, also one that
+    no plane proves outside and no point proves touching.
     Directions are tried in two rounds: cheap ones for every primitive near the
     solid (`quick_directions`), then the searched ones (`full_directions`) for the
     primitives still undecided.
@@ -361,12 +378,12 @@ def solid_verdict(x_t0, x_t1, simplices, solid: SolidFrames, thickness, pre_exis
             planes.add(every, solid, P0, P1, n, thickness)
         # undecided: moving without a plane through (raw: also a start not proved clear)
         todo = np.flatnonzero(~planes.through & (moved if pre_existing else True))
-        within = np.zeros(K, bool)
+        within, touching = np.zeros(K, bool), np.zeros(K, bool)
         if len(todo):
-            dirs, upper = full_directions(frame0, solid.axis, P0[todo])
+            dirs, upper, touch = full_directions(frame0, solid.axis, P0[todo])
             for n in dirs:
                 planes.add(todo, solid, P0[todo], P1[todo], n, thickness)
-            within[todo] = upper < thickness
+            within[todo], touching[todo] = upper < thickness, touch
         if not pre_existing:
             start = ~planes.clear0
             path = ~planes.through & ~start
@@ -374,7 +391,7 @@ def solid_verdict(x_t0, x_t1, simplices, solid: SolidFrames, thickness, pre_exis
         else:
             start = np.zeros(K, bool)
             pre = ~planes.free0
-            path = moved & ~planes.through & ~(within & planes.free_both) & ~(pre & planes.not_deeper)
+            path = moved & ~planes.through & ~(within & planes.free_both) & ~(touching & planes.not_deeper)
         listed = start | path | pre
         if (~listed & planes.through).any():
             sep = min(sep, max(0.0, float(planes.lb[~listed & planes.through].min())))

@@ -231,7 +231,8 @@ def test_full_directions_point_from_the_solid_to_the_primitive_and_bound_the_dis
     profile = (0.0, 0.0, 1.0, 0.0, 1.0)
     frame = _frame(profile, np.eye(3) * 2.0, np.array([5.0, 0, 0]), "t")
     P = np.array([[[5.0, 0, 3.0], [6.0, 0, 3.0], [5.0, 1.0, 3.0]]])  # 1 above the sphere of radius 2
-    dirs, upper = full_directions(frame, 2, P)
+    dirs, upper, touching = full_directions(frame, 2, P)
+    assert not touching[0]
     # the first edge holds the closest point (a vertex) and the face is parallel to the tangent plane
     for n in (dirs[0], dirs[-1]):
         np.testing.assert_allclose(n[0] / np.linalg.norm(n[0]), [0, 0, 1], atol=1e-12)
@@ -263,3 +264,15 @@ def test_solid_separation_is_the_distance_of_vertices_and_of_faces_folded_into_t
     assert d[4] == 2.0  # beyond the radius: capped
     # never above the exact distance of the vertices
     assert (d <= np.linalg.norm(x, axis=1) - 1.0 + 1e-12).all()
+
+
+def test_full_directions_prove_a_face_pierced_by_the_solid_touching():
+    """A sphere poking through the middle of a big triangle whose edges all pass outside it:
+    the foot of the sphere's top point proves the contact; a triangle 1e-3 above it is not."""
+    profile = (0.0, 0.0, 1.0, 0.0, 1.0)
+    frame = _frame(profile, np.eye(3), np.zeros(3), "t")
+    tri = np.array([[3.0, 0, 0], [-1.5, 2.6, 0], [-1.5, -2.6, 0]])
+    P = np.stack([tri + [0, 0, 0.9], tri + [0, 0, 1.001]])
+    dirs, upper, touching = full_directions(frame, 2, P)
+    assert touching.tolist() == [True, False]
+    np.testing.assert_allclose(upper[1], 1e-3, rtol=1e-9)
