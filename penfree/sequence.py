@@ -344,10 +344,10 @@ def _check_obstacle(ob: Obstacle, T: int, where: str):
     if (ob.faces is None or not len(ob.faces)) and (ob.edges is None or not len(ob.edges)):
         raise InputError(f"obstacle needs faces or edges in {ds}")
     if ob.shape is not None:
-        _check_shape(ob.shape, T, where, f"obstacles/{ob.name}/shape")
+        check_shape(ob.shape, T, where, f"obstacles/{ob.name}/shape")
 
 
-def _check_shape(sh: AnalyticShape, T: int, where: str, name: str):
+def check_shape(sh: AnalyticShape, T: int, where: str, name: str) -> None:
     """An analytic solid: axis 0-2, profile (5,) / (T, 5) finite and >= 0 and not all 0,
     transform (4, 3) / (T, 4, 3) finite with a nonsingular linear part."""
     ds = f"{where}:/{name}"

@@ -31,7 +31,7 @@ import numpy as np
 from ..constants import FORMAT_VERSION
 from ..errors import FormatError, InputError
 from ._json import json_default
-from ..sequence import OBSTACLE_FORMS, PROFILE_FIELDS, AnalyticShape, Obstacle, Sequence
+from ..sequence import OBSTACLE_FORMS, PROFILE_FIELDS, AnalyticShape, Obstacle, Sequence, check_shape
 from ._registry import register
 from .atomic import atomic_file
 from .frames import Frames, StoredFrames
@@ -327,12 +327,9 @@ def read_shape(g, path, where, window=None, T=None) -> AnalyticShape:
 def read_whole_shape(f, name, where, T) -> AnalyticShape:
     """``obstacles/<name>/shape`` of an open file, every one of its `T` frames, checked as
     `Sequence.validate` checks it (a merge validates the sequence read in a 2-frame window,
-    then takes the per-frame data whole). The check runs on a one-triangle probe sequence,
-    so that the rule stays in one place (`sequence`)."""
+    then takes the per-frame data whole)."""
     shape = read_shape(f[f"obstacles/{name}"], f"obstacles/{name}", where)
-    tri = np.array([[0, 1, 2]])
-    Sequence(positions=np.zeros((T, 3, 3)), faces=tri, origin=where,
-             obstacles=[Obstacle(name, positions=np.eye(3), faces=tri, shape=shape)]).validate()
+    check_shape(shape, T, where, f"obstacles/{name}/shape")
     return shape
 
 
