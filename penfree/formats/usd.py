@@ -21,8 +21,11 @@ Reading (``read_usd``):
   plane's axis; infinite, as physics engines treat a ground plane, whatever its
   width and length); ``UsdGeomCube``, ``Sphere``, ``Capsule``, ``Capsule_1``,
   ``Cylinder``, ``Cylinder_1`` and ``Cone`` become triangle meshes that *contain*
-  the shape (see ``_usd_shapes``: a step safe against the mesh is safe against the
-  shape), their sizes read at each frame (time samples included); meshes with
+  the shape (see ``_usd_shapes``), and every one but the cube (whose mesh is exact)
+  also keeps its exact solid (`penfree.sequence.AnalyticShape`), which deform and
+  verify check instead of the mesh; their sizes read at each frame (time samples
+  included). A mesh penfree wrote for such a solid carries it in ``penfree:shape:*``
+  attributes, which the reader restores; meshes with
   ``PhysicsCollisionAPI`` whose points do not deform (simulated cloth often carries
   the API too: deforming points make it scene), skinned meshes with it (posed by
   their ``UsdSkel`` skeleton at each frame: linear blend skinning, in the skeleton's
