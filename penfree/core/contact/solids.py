@@ -261,6 +261,12 @@ def full_directions(frame, axis, P):
     return out, upper, touching
 
 
+def _nonzero(n):
+    """Directions `n` (K, 3) with zero rows replaced by +z (a primitive touching the solid,
+    where any plane shows a gap <= 0)."""
+    return np.where((np.abs(n).max(axis=1) > 0)[:, None], n, (0.0, 0.0, 1.0))
+
+
 def _plane_gaps(frame, axis, P, n, thickness, support=None):
     """``(d, err, |n|)``: ``d = min_k (n . P_k) - h_S(n)`` per primitive and its rounding bound
     (`support`: ``_support(frame, axis, n)`` when known)."""
@@ -290,7 +296,7 @@ class _Planes:
         self.not_deeper = np.zeros(K, bool)  # direction: no closer to (deeper into) the solid at the end
 
     def add(self, rows, solid, P0, P1, n, thickness):
-        n = np.where((np.abs(n).max(axis=1) > 0)[:, None], n, (0.0, 0.0, 1.0))
+        n = _nonzero(n)
         with np.errstate(invalid="ignore", over="ignore"):
             sup = _support(solid.ends[0], solid.axis, n)
             d0, e0, nn = _plane_gaps(solid.ends[0], solid.axis, P0, n, thickness, sup)
@@ -438,7 +444,7 @@ def solid_separation(x, E, F, shape, radius, s=0):
         P = P[idx]
         best = np.full(len(idx), -np.inf)
         for n in quick_directions(frame, axis, P):
-            n = np.where((np.abs(n).max(axis=1) > 0)[:, None], n, (0.0, 0.0, 1.0))
+            n = _nonzero(n)
             with np.errstate(invalid="ignore", over="ignore"):
                 g, err, nn = _plane_gaps(frame, axis, P, n, 0.0)
                 best = np.fmax(best, (g - err) / nn)

@@ -312,6 +312,15 @@ def _bodies(x_t0, x_t1, edges, faces, obstacles):
     return scene, obs, halves, solids
 
 
+def _add_listed(kind, start, path, pre, found):
+    """Scene primitives found against a one-piece obstacle (a half-space, a solid) into the
+    collectors: `found` = (start, path, pre) index arrays; pair j is 0."""
+    for col, idx in zip((start, path, pre), found):
+        if col is not None and len(idx):
+            ij = np.stack([idx, np.zeros_like(idx)], axis=1)
+            col.add(kind, ij, np.ones(len(idx), np.int8), np.zeros(len(idx)), np.zeros(len(idx)))
+
+
 def _half_spaces(halves, scene, thickness, start, path, pre):
     """Exact half-space verdicts of every scene vertex into the collectors (pair j is 0)."""
     from ..contact.obstacles import half_space_verdict
@@ -319,11 +328,7 @@ def _half_spaces(halves, scene, thickness, start, path, pre):
     for name, normal, offset in halves:
         st, bad, old, sep = half_space_verdict(scene.x_t0, scene.x_t1, normal, offset, thickness,
                                                pre_existing=pre is not None)
-        kind = f"hs:{name}"
-        for col, idx in ((start, st), (path, bad), (pre, old)):
-            if col is not None and len(idx):
-                ij = np.stack([idx, np.zeros_like(idx)], axis=1)
-                col.add(kind, ij, np.ones(len(idx), np.int8), np.zeros(len(idx)), np.zeros(len(idx)))
+        _add_listed(f"hs:{name}", start, path, pre, (st, bad, old))
         path.sep = min(path.sep, sep)
 
 
@@ -349,10 +354,7 @@ def _solids(solids, scene, thickness, start, path, pre):
         verdicts, sep = solid_verdict(scene.x_t0, scene.x_t1, [S for _, S in simplices], solid, thickness,
                                       pre_existing=pre is not None)
         for (tag, _), found in zip(simplices, verdicts):
-            for col, idx in zip((start, path, pre), found):
-                if col is not None and len(idx):
-                    ij = np.stack([idx, np.zeros_like(idx)], axis=1)
-                    col.add(f"{tag}:{name}", ij, np.ones(len(idx), np.int8), np.zeros(len(idx)), np.zeros(len(idx)))
+            _add_listed(f"{tag}:{name}", start, path, pre, found)
         path.sep = min(path.sep, sep)
 
 
