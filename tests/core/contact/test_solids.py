@@ -277,3 +277,32 @@ def test_full_directions_prove_a_face_pierced_by_the_solid_touching():
     dirs, upper, touching = full_directions(frame, 2, P)
     assert touching.tolist() == [True, False]
     np.testing.assert_allclose(upper[1], 1e-3, rtol=1e-9)
+
+
+def test_the_kernels_give_the_same_bits_serially_and_in_parallel():
+    """`solid_kernels`' batch kernels: each primitive writes only its own slots, so the serial
+    build and the parallel one (any thread count) agree bit for bit, verdicts and bounds."""
+    from penfree.core.contact import solid_kernels as k
+
+    rng = np.random.default_rng(11)
+    profile = np.array(PROFILES[2][1])
+    L, c = _similarity(rng, 0.8)
+    frame0, frame1 = _frame(profile, L, c, "t0"), _frame(profile, L, c + 0.01, "t1")
+    x0 = c + rng.normal(size=(3000, 3)) * 1.2
+    x1 = x0 + rng.normal(size=(3000, 3)) * 0.05
+    lo, hi = np.full(3, -np.inf), np.full(3, np.inf)
+    for S in (rng.integers(0, 3000, (2500, 3)), rng.integers(0, 3000, (2500, 2)), np.arange(3000)[:, None]):
+        for pre in (False, True):
+            out = []
+            for build in (k.verdict_kernel.serial, k.verdict_kernel.parallel):
+                flags, lbs = np.zeros(len(S), np.int8), np.empty(len(S))
+                build(x0, x1, S, frame0[4], frame1[4], False, 0, 0.02, pre, lo, hi, flags, lbs)
+                out.append((flags, lbs))
+            assert np.array_equal(out[0][0], out[1][0]) and np.array_equal(out[0][1], out[1][1])
+            assert len(set(out[0][0])) >= 2  # both verdicts occur
+        out = []
+        for build in (k.separation_kernel.serial, k.separation_kernel.parallel):
+            lbs = np.empty(len(S))
+            build(x0, S, frame0[4], 0, 0.5, lo, hi, lbs)
+            out.append(lbs)
+        assert np.array_equal(out[0], out[1]) and 0 < (out[0] < 0.5).sum() < len(S)
