@@ -271,9 +271,13 @@ def full_directions(F, axis, P, out):
             s0, s1, s2 = q0, q1, q2  # the first edge's nearest solid point
     if k == 2:
         return 1, upper, touching
-    # the face normal, from the solid toward the face
+    # the face normal, from the solid toward the face: the side whose supporting plane
+    # leaves the larger gap (for a face cutting into the solid, the first edge's nearest
+    # point lies in the face and the direction toward the centroid has no sign)
     f0, f1, f2 = _face_normal(P, (P[0, 0] + P[1, 0] + P[2, 0]) / 3.0 - s0, (P[0, 1] + P[1, 1] + P[2, 1]) / 3.0 - s1,
                               (P[0, 2] + P[1, 2] + P[2, 2]) / 3.0 - s2)
+    if _plane_gap_t0(F, axis, P, -f0, -f1, -f2) > _plane_gap_t0(F, axis, P, f0, f1, f2):
+        f0, f1, f2 = -f0, -f1, -f2
     out[3, 0], out[3, 1], out[3, 2] = f0, f1, f2
     s0, s1, s2 = support_point(F, axis, f0, f1, f2)  # the solid's point reaching farthest toward the face
     ff = f0 * f0 + f1 * f1 + f2 * f2
@@ -308,6 +312,12 @@ def plane_gap(P, n0, n1, n2, thickness, h, err_h):
         d = min(d, P[j, 0] * n0 + P[j, 1] * n1 + P[j, 2] * n2)
         top = max(top, abs(P[j, 0]), abs(P[j, 1]), abs(P[j, 2]))
     return d - h, err_h + REL * math.sqrt(n0 * n0 + n1 * n1 + n2 * n2) * (3.0 * top + thickness)
+
+
+@njit(cache=True)
+def _plane_gap_t0(F, axis, P, n0, n1, n2):
+    """``min_k (n . P_k) - h_S(n)``, unbounded rounding: only to choose between directions."""
+    return plane_gap(P, n0, n1, n2, 0.0, support(F, axis, n0, n1, n2)[0], 0.0)[0]
 
 
 @njit(cache=True)

@@ -99,7 +99,8 @@ def full_directions(frame, axis, P):
     """Candidate directions per primitive that are exact up to the search's precision:
     the solid's normal at the point of each edge nearest to it (golden section: the local
     signed distance is convex along an edge), and for triangles the face normal (exact
-    when the closest point lies inside the face). For a lone vertex: the normal at its
+    when the closest point lies inside the face; turned to the side whose supporting
+    plane leaves the larger gap). For a lone vertex: the normal at its
     closest point and the direction to it.
 
     Parameters
