@@ -279,6 +279,22 @@ def test_full_directions_prove_a_face_pierced_by_the_solid_touching():
     np.testing.assert_allclose(upper[1], 1e-3, rtol=1e-9)
 
 
+def test_the_face_normal_of_a_face_cutting_into_the_solid_points_out_of_it():
+    """Small triangles lying 0.01 inside a unit sphere's top, in random orientations within
+    their plane: the first edge's nearest point lies in the face, so the direction from it
+    to the centroid gives the normal no side; the searched face normal takes the side whose
+    plane leaves the larger gap, +z (a gap of -0.01 against -1.99 below)."""
+    rng = np.random.default_rng(4)
+    frame = _frame((0.0, 0.0, 1.0, 0.0, 1.0), np.eye(3), np.zeros(3), "t")
+    a = rng.uniform(0, 2 * np.pi, 200)[:, None] + np.array([0.0, 2.1, 4.2])
+    size = rng.uniform(0.01, 0.1, (200, 1))
+    P = np.stack([size * np.cos(a), size * np.sin(a), np.full((200, 3), 0.99)], axis=-1)
+    P[::2] = P[::2, ::-1]  # both windings
+    dirs, _, touching = full_directions(frame, 2, P)
+    assert touching.all()
+    face = dirs[3]
+    assert (face[:, 2] > 0).all() and np.allclose(face[:, :2], 0.0, atol=1e-12 * np.abs(face[:, 2:]).max())
+
 def test_the_kernels_give_the_same_bits_serially_and_in_parallel():
     """`solid_kernels`' batch kernels: each primitive writes only its own slots, so the serial
     build and the parallel one (any thread count) agree bit for bit, verdicts and bounds."""
