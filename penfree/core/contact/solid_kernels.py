@@ -371,6 +371,68 @@ def _add_plane(state, F0, F1, static, axis, P0, P1, d, thickness):
         state[6] = 1.0 if d1 >= d0 else 0.0  # not deeper at the end (the rule of a pre-existing contact)
 
 
+#: Bisections of a step's path, at most, for a primitive that no single plane keeps clear
+#: over the whole step (2^6 = 64 pieces).
+PIECE_DEPTH = 6
+_EPS = 2.0 ** -52
+
+
+@njit(cache=True)
+def _at(P0, P1, t, out):
+    """The vertices at time t of the straight path: ``(1 - t) P0 + t P1`` (exact at t = 0
+    and 1); returns the largest coordinate magnitude, for the rounding bound."""
+    top = 0.0
+    for j in range(P0.shape[0]):
+        for a in range(3):
+            out[j, a] = (1.0 - t) * P0[j, a] + t * P1[j, a]
+            top = max(top, abs(P0[j, a]), abs(P1[j, a]))
+    return top
+
+
+@njit(cache=True)
+def _pieces_through(F, axis, P0, P1, Pa, Pb, dirs, thickness):
+    """Whether the path P0 -> P1 against a static solid splits into pieces [ta, tb] (by
+    bisection, at most `PIECE_DEPTH` deep) each kept at least `thickness` from the solid
+    by one plane (a quick direction at the piece's start) at both of its ends; and the
+    smallest lower bound of the distance over the pieces.
+
+    A piece is a straight-line motion too, so the ends decide it as they decide the whole
+    step. Its ends are computed points: the bound adds their rounding (a few units in the
+    last place of the coordinates) to each plane gap's. A primitive moving far along a
+    curved solid passes this where one plane for the whole step cannot (a sheet sliding
+    over a ball by a fraction of its faces' size).
+    """
+    stack = np.empty((PIECE_DEPTH + 2, 3))
+    stack[0, 0], stack[0, 1], stack[0, 2] = 0.0, 1.0, 0.0
+    n_stack, lb = 1, np.inf
+    while n_stack:
+        n_stack -= 1
+        ta, tb, depth = stack[n_stack, 0], stack[n_stack, 1], stack[n_stack, 2]
+        top = max(_at(P0, P1, ta, Pa), _at(P0, P1, tb, Pb))
+        best = -np.inf
+        for r in range(quick_directions(F, axis, Pa, dirs)):
+            n0, n1, n2 = _nonzero(dirs[r, 0], dirs[r, 1], dirs[r, 2])
+            h, eh = support(F, axis, n0, n1, n2)
+            nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+            e_at = 4.0 * _EPS * nn * top  # the computed ends against the path's points
+            da, ea = plane_gap(Pa, n0, n1, n2, thickness, h, eh)
+            db, eb = plane_gap(Pb, n0, n1, n2, thickness, h, eh)
+            ea, eb = ea + e_at, eb + e_at
+            hn = thickness * nn
+            if da - hn > ea and db - hn > eb:
+                best = max(best, min(da - ea, db - eb) / nn)
+        if best > -np.inf:
+            lb = min(lb, best)
+        elif depth < PIECE_DEPTH:
+            tm = 0.5 * (ta + tb)  # dyadic: exact, and so are 1 - t and the pieces' shared ends
+            stack[n_stack, 0], stack[n_stack, 1], stack[n_stack, 2] = tm, tb, depth + 1
+            stack[n_stack + 1, 0], stack[n_stack + 1, 1], stack[n_stack + 1, 2] = ta, tm, depth + 1
+            n_stack += 2
+        else:
+            return False, -np.inf
+    return True, lb
+
+
 #: Primitives per chunk of the batch kernels (each chunk allocates its scratch once).
 _CHUNK = 256
 
@@ -378,7 +440,7 @@ _CHUNK = 256
 def _verdict_py(x_t0, x_t1, S, F0, F1, static, axis, thickness, pre_existing, lo, hi, flags, lbs):
     n, k = S.shape[0], S.shape[1]
     for ch in prange((n + _CHUNK - 1) // _CHUNK):
-        P0, P1 = np.empty((k, 3)), np.empty((k, 3))
+        P0, P1, Pa, Pb = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
         dirs, state = np.empty((4, 3)), np.empty(7)
         for i in range(ch * _CHUNK, min(n, (ch + 1) * _CHUNK)):
             flags[i], lbs[i] = 0, np.inf
@@ -400,6 +462,10 @@ def _verdict_py(x_t0, x_t1, S, F0, F1, static, axis, thickness, pre_existing, lo
                 for r in range(m):
                     _add_plane(state, F0, F1, static, axis, P0, P1, dirs[r], thickness)
                 within = upper < thickness
+                if state[0] == 0.0 and state[2] > 0.0 and static and moved:
+                    ok, lb = _pieces_through(F0, axis, P0, P1, Pa, Pb, dirs, thickness)
+                    if ok:
+                        state[0], state[4] = 1.0, max(state[4], lb)
             through, free_both, clear0, free0 = state[0] > 0, state[1] > 0, state[2] > 0, state[3] > 0
             f = 0
             if not pre_existing:

@@ -27,9 +27,12 @@ vertices at both ends of the step against that one plane:
 
 The direction only decides how permissive the test is, never whether it is sound:
 every plane used is a supporting plane, evaluated with a rigorous rounding bound
-(ties count as contact). It refuses some paths that clear a curved solid (a
-primitive that ends past its own tangent plane) and never accepts one that
-enters it. Primitives whose swept box stays farther than the thickness from the
+(ties count as contact). Against a static solid, a primitive that no single plane
+keeps clear over the whole step is tried again on the step bisected (up to
+`solid_kernels.PIECE_DEPTH` levels: 64 pieces, each a straight-line motion with its
+own plane at its start), so a sheet sliding over a ball passes where one plane for
+the whole step cannot. It still refuses some paths that clear a curved solid and
+never accepts one that enters it. Primitives whose swept box stays farther than the thickness from the
 solid's box are not tested (the boxes' distance bounds the distance).
 
 The arithmetic runs in Numba, one primitive at a time (`penfree.core.contact.solid_kernels`);
@@ -170,7 +173,9 @@ def solid_verdict(x_t0, x_t1, simplices, solid: SolidFrames, thickness, pre_exis
     no plane proves outside and no point proves touching.
     Directions are tried in two rounds: cheap ones for every primitive near the
     solid (`solid_kernels.quick_directions`), then the searched ones
-    (`full_directions`) for the primitives still undecided.
+    (`full_directions`) for the primitives still undecided; against a static solid,
+    a primitive clear at the start that is still undecided then has its path bisected
+    (module docstring).
     """
     lo = np.minimum(*(_box(f, solid.axis)[0] for f in solid.ends))
     hi = np.maximum(*(_box(f, solid.axis)[1] for f in solid.ends))

@@ -295,6 +295,41 @@ def test_the_face_normal_of_a_face_cutting_into_the_solid_points_out_of_it():
     face = dirs[3]
     assert (face[:, 2] > 0).all() and np.allclose(face[:, :2], 0.0, atol=1e-12 * np.abs(face[:, 2:]).max())
 
+def test_faces_sliding_over_a_ball_pass_where_one_plane_for_the_whole_step_cannot():
+    """Triangles resting 1e-5 above a unit sphere (beyond their sagitta), moved by the
+    constant-velocity extrapolation of a rotation about the centre by 0.01-0.3 rad: every
+    point moves outward along its tangent, so every path is clear (dense sampling checks
+    it). One supporting plane for the whole step refused 130 of these 400 paths; the
+    bisected path (`solid_kernels.PIECE_DEPTH`) passes them all."""
+    rng = np.random.default_rng(0)
+    profile = (0.0, 0.0, 1.0, 0.0, 1.0)
+    solid = SolidFrames(2, (profile, np.eye(3), np.zeros(3)), (profile, np.eye(3), np.zeros(3)))
+    K = 400
+    c = rng.normal(size=(K, 3))
+    c /= np.linalg.norm(c, axis=1)[:, None]
+    a = np.cross(c, rng.normal(size=(K, 3)))
+    a /= np.linalg.norm(a, axis=1)[:, None]
+    b = np.cross(c, a)
+    size = rng.uniform(0.01, 0.1, (K, 1, 1))
+    ang = rng.uniform(0, 2 * np.pi, (K, 1)) + [0.0, 2.1, 4.2]
+    tri = c[:, None] + size * (np.cos(ang)[..., None] * a[:, None] + np.sin(ang)[..., None] * b[:, None])
+    tri /= np.linalg.norm(tri, axis=2)[..., None]
+    tri *= 1 + rng.uniform(0.52, 0.7, (K, 1, 1)) * size ** 2 + 1e-5
+    axis = rng.normal(size=(K, 3))
+    axis /= np.linalg.norm(axis, axis=1)[:, None]
+    theta = rng.uniform(0.01, 0.3, (K, 1, 1))
+    # p R^T for the rotation about `axis` (Rodrigues), per triangle: d = p - p R^T is tangent and outward
+    cross = np.cross(axis[:, None], tri)
+    rotated_back = tri * np.cos(theta) - cross * np.sin(theta) + axis[:, None] * (
+        np.einsum("kj,kvj->kv", axis, tri)[..., None] * (1 - np.cos(theta)))
+    P0, P1 = tri, 2 * tri - rotated_back
+    S = np.arange(3 * K).reshape(K, 3)
+    d = np.linalg.norm(_sample_path(P0, P1), axis=-1) - 1.0
+    assert d.min() > 0
+    for thickness in (0.0, 5e-6):
+        (start, path, _), = solid_verdict(P0.reshape(-1, 3), P1.reshape(-1, 3), [S], solid, thickness)[0]
+        assert len(start) == 0 and len(path) == 0
+
 def test_the_kernels_give_the_same_bits_serially_and_in_parallel():
     """`solid_kernels`' batch kernels: each primitive writes only its own slots, so the serial
     build and the parallel one (any thread count) agree bit for bit, verdicts and bounds."""
