@@ -32,8 +32,9 @@ keeps clear over the whole step is tried again on the step bisected (up to
 `solid_kernels.PIECE_DEPTH` levels: 64 pieces, each a straight-line motion with its
 own plane at its start), so a sheet sliding over a ball passes where one plane for
 the whole step cannot. It still refuses some paths that clear a curved solid and
-never accepts one that enters it. Primitives whose swept box stays farther than the thickness from the
-solid's box are not tested (the boxes' distance bounds the distance).
+never accepts one that enters it. Primitives whose swept box stays farther than the
+thickness from the solid's box are not tested (the boxes' distance bounds the
+distance).
 
 The arithmetic runs in Numba, one primitive at a time (`penfree.core.contact.solid_kernels`);
 this module validates the solids and reads the verdicts.
