@@ -84,15 +84,22 @@ def _times_lt(F, n0, n1, n2):
 
 
 @njit(cache=True)
-def support(F, axis, n0, n1, n2):
-    """``h_S(n)`` and a bound on its rounding error."""
-    half, a0, b0, a1, b1 = 0.5 * F[0], F[1], F[2], F[3], F[4]
+def _end_terms(F, axis, n0, n1, n2):
+    """``m = L n`` split along the axis ``(m_a, m_u, m_v)``, ``|m_perp|``, ``|m|``, and the
+    local support of the bottom and the top rounded disc along m."""
+    half = 0.5 * F[0]
     m0, m1, m2 = _times_lt(F, n0, n1, n2)
     ma, mu, mv = _pick(axis, m0, m1, m2)
     perp = math.hypot(mu, mv)
     mn = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
-    h = (n0 * F[_C] + n1 * F[_C + 1] + n2 * F[_C + 2]
-         + max(-half * ma + a0 * perp + b0 * mn, half * ma + a1 * perp + b1 * mn))
+    return ma, mu, mv, perp, mn, -half * ma + F[1] * perp + F[2] * mn, half * ma + F[3] * perp + F[4] * mn
+
+
+@njit(cache=True)
+def support(F, axis, n0, n1, n2):
+    """``h_S(n)`` and a bound on its rounding error."""
+    bottom, top = _end_terms(F, axis, n0, n1, n2)[5:]
+    h = n0 * F[_C] + n1 * F[_C + 1] + n2 * F[_C + 2] + max(bottom, top)
     return h, REL * math.sqrt(n0 * n0 + n1 * n1 + n2 * n2) * F[_SCALE] + 1e-300
 
 
@@ -163,11 +170,8 @@ def closest_point(F, axis, x0, x1, x2):
 def support_point(F, axis, n0, n1, n2):
     """A point of the world solid maximising ``n . x``."""
     half = 0.5 * F[0]
-    m0, m1, m2 = _times_lt(F, n0, n1, n2)
-    ma, mu, mv = _pick(axis, m0, m1, m2)
-    perp = math.hypot(mu, mv)
-    mn = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
-    if half * ma + F[3] * perp + F[4] * mn >= -half * ma + F[1] * perp + F[2] * mn:
+    ma, mu, mv, perp, mn, bottom, top = _end_terms(F, axis, n0, n1, n2)
+    if top >= bottom:
         z, disc, rnd = half, F[3], F[4]
     else:
         z, disc, rnd = -half, F[1], F[2]
@@ -339,8 +343,9 @@ def _near(P0, P1, lo, hi):
 
 
 @njit(cache=True)
-def _add_plane(state, F0, F1, static, axis, P0, P1, d, thickness):
-    """Fold the plane test of direction `d` (3,) into a primitive's `state`."""
+def _add_plane(state, F0, F1, static, axis, P0, P1, d, thickness, slack=0.0):
+    """Fold the plane test of direction `d` (3,) into a primitive's `state` (`slack`: a
+    further rounding bound of the positions, per unit of |n|, added to both ends')."""
     n0, n1, n2 = _nonzero(d[0], d[1], d[2])
     h0, eh0 = support(F0, axis, n0, n1, n2)
     if static:
@@ -350,6 +355,7 @@ def _add_plane(state, F0, F1, static, axis, P0, P1, d, thickness):
     d0, e0 = plane_gap(P0, n0, n1, n2, thickness, h0, eh0)
     d1, e1 = plane_gap(P1, n0, n1, n2, thickness, h1, eh1)
     nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    e0, e1 = e0 + slack * nn, e1 + slack * nn
     hn = thickness * nn
     c0, c1 = d0 - hn > e0, d1 - hn > e1
     f0, f1 = d0 > e0, d1 > e1
@@ -390,11 +396,12 @@ def _at(P0, P1, t, out):
 
 
 @njit(cache=True)
-def _pieces_through(F, axis, P0, P1, Pa, Pb, dirs, thickness):
+def _pieces_through(F, axis, P0, P1, Pa, Pb, dirs, state, thickness):
     """Whether the path P0 -> P1 against a static solid splits into pieces [ta, tb] (by
     bisection, at most `PIECE_DEPTH` deep) each kept at least `thickness` from the solid
     by one plane (a quick direction at the piece's start) at both of its ends; and the
-    smallest lower bound of the distance over the pieces.
+    smallest lower bound of the distance over the pieces. `state` is scratch for
+    `_add_plane` (a piece's own test).
 
     A piece is a straight-line motion too, so the ends decide it as they decide the whole
     step. Its ends are computed points: the bound adds their rounding (a few units in the
@@ -408,21 +415,13 @@ def _pieces_through(F, axis, P0, P1, Pa, Pb, dirs, thickness):
     while n_stack:
         n_stack -= 1
         ta, tb, depth = stack[n_stack, 0], stack[n_stack, 1], stack[n_stack, 2]
-        top = max(_at(P0, P1, ta, Pa), _at(P0, P1, tb, Pb))
-        best = -np.inf
+        slack = 4.0 * _EPS * max(_at(P0, P1, ta, Pa), _at(P0, P1, tb, Pb))  # the computed ends
+        state[:] = 0.0
+        state[4] = state[5] = -np.inf
         for r in range(quick_directions(F, axis, Pa, dirs)):
-            n0, n1, n2 = _nonzero(dirs[r, 0], dirs[r, 1], dirs[r, 2])
-            h, eh = support(F, axis, n0, n1, n2)
-            nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-            e_at = 4.0 * _EPS * nn * top  # the computed ends against the path's points
-            da, ea = plane_gap(Pa, n0, n1, n2, thickness, h, eh)
-            db, eb = plane_gap(Pb, n0, n1, n2, thickness, h, eh)
-            ea, eb = ea + e_at, eb + e_at
-            hn = thickness * nn
-            if da - hn > ea and db - hn > eb:
-                best = max(best, min(da - ea, db - eb) / nn)
-        if best > -np.inf:
-            lb = min(lb, best)
+            _add_plane(state, F, F, True, axis, Pa, Pb, dirs[r], thickness, slack)
+        if state[0] > 0.0:
+            lb = min(lb, state[4])
         elif depth < PIECE_DEPTH:
             tm = 0.5 * (ta + tb)  # dyadic: exact, and so are 1 - t and the pieces' shared ends
             stack[n_stack, 0], stack[n_stack, 1], stack[n_stack, 2] = tm, tb, depth + 1
@@ -441,7 +440,7 @@ def _verdict_py(x_t0, x_t1, S, F0, F1, static, axis, thickness, pre_existing, lo
     n, k = S.shape[0], S.shape[1]
     for ch in prange((n + _CHUNK - 1) // _CHUNK):
         P0, P1, Pa, Pb = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
-        dirs, state = np.empty((4, 3)), np.empty(7)
+        dirs, state, piece = np.empty((4, 3)), np.empty(7), np.empty(7)
         for i in range(ch * _CHUNK, min(n, (ch + 1) * _CHUNK)):
             flags[i], lbs[i] = 0, np.inf
             _gather(x_t0, S, i, P0)
@@ -463,7 +462,7 @@ def _verdict_py(x_t0, x_t1, S, F0, F1, static, axis, thickness, pre_existing, lo
                     _add_plane(state, F0, F1, static, axis, P0, P1, dirs[r], thickness)
                 within = upper < thickness
                 if state[0] == 0.0 and state[2] > 0.0 and static and moved:
-                    ok, lb = _pieces_through(F0, axis, P0, P1, Pa, Pb, dirs, thickness)
+                    ok, lb = _pieces_through(F0, axis, P0, P1, Pa, Pb, dirs, piece, thickness)
                     if ok:
                         state[0], state[4] = 1.0, max(state[4], lb)
             through, free_both, clear0, free0 = state[0] > 0, state[1] > 0, state[2] > 0, state[3] > 0

@@ -178,8 +178,8 @@ def solid_verdict(x_t0, x_t1, simplices, solid: SolidFrames, thickness, pre_exis
     a primitive clear at the start that is still undecided then has its path bisected
     (module docstring).
     """
-    lo = np.minimum(*(_box(f, solid.axis)[0] for f in solid.ends))
-    hi = np.maximum(*(_box(f, solid.axis)[1] for f in solid.ends))
+    (lo0, hi0), (lo1, hi1) = (_box(f, solid.axis) for f in solid.ends)
+    lo, hi = np.minimum(lo0, lo1), np.maximum(hi0, hi1)
     reach = thickness * (1.0 + 1e-12) + 1e-14 * float(max(np.abs(lo).max(), np.abs(hi).max()))
     lo, hi = lo - reach, hi + reach
     x_t0 = np.ascontiguousarray(x_t0, dtype=np.float64)
