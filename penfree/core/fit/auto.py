@@ -16,6 +16,14 @@ candidate map without any new neighbourhood query:
 
 then ``r_v = |x_pred_v - x_def_v| / b_hat_v`` gives the predicted hit rate, ``K_1pct``
 and ``K_any`` exactly as `stats.ratio_stats` defines them, in O(N) per candidate.
+
+A moving vertex whose *start* bound is zero (inside the thickness, or touching or
+crossing something: a pre-existing intersection, which an invertible affine map keeps)
+is stuck whatever the map, and is left out of K for every candidate, as
+`stats.ratio_stats` leaves it out for doing nothing. Counting it as ``r = inf`` instead
+would make every moving candidate's ``K_1pct`` unbounded as soon as more than 1% of the
+vertices are stuck, and a recording with a few crossings would never move. Only a vertex
+whose positive start bound the candidate's sigma may shrink to zero gets ``r = inf``.
 """
 
 from __future__ import annotations
@@ -90,20 +98,21 @@ def predicted_bounds(d_start, sigma, r_q, thickness, gamma=K.DEFAULT_GAMMA):
     return gamma * np.maximum(0.0, d - thickness)
 
 
-def predict_passes(x_def, y, b, unbounded=False) -> dict:
+def predict_passes(x_def, y, b, b_start=None) -> dict:
     """Hit rate, K_1pct, K_any and r_q99 of `y` from `x_def` with bounds `b`, O(N).
 
     Same definitions as `stats.ratio_stats` (blocked vertices left out of K, numpy's
-    "higher" percentile), using a partition instead of a sort. With `unbounded`, a
-    moving vertex with ``b = 0`` is not left out but has ``r = inf`` (the reading for
-    predicted bounds, which are lower bounds: the actual bound may be tiny and
-    positive); K is then `K_UNBOUNDED` when the percentile is infinite.
+    "higher" percentile), using a partition instead of a sort. With `b_start` (the
+    start bounds, when `b` are a moving map's predicted lower bounds), a moving vertex
+    with ``b = 0`` is left out only where its start bound is 0 too (the vertex is
+    stuck whatever the map); elsewhere it has ``r = inf`` (the actual bound may be tiny
+    and positive), and K is then `K_UNBOUNDED` when the percentile is infinite.
     """
     dist = np.linalg.norm(np.asarray(y, dtype=np.float64) - np.asarray(x_def, dtype=np.float64), axis=1)
     n_all = dist.size
     moving = dist > 0
     zero_b = moving & ~(b > 0)
-    blocked = zero_b & (not unbounded)
+    blocked = zero_b if b_start is None else zero_b & ~(np.asarray(b_start) > 0)
     ok = moving & ~zero_b
     r = np.zeros(n_all)
     r[ok] = dist[ok] / b[ok]
@@ -203,11 +212,10 @@ def _predict(x_prev, x, D, u, c, d_start, sigma, r_q, thickness, gamma, r):
     """`predict_map_passes` on validated arrays (the per-candidate call of `select_step`)."""
     n = x.shape[0]
     # Doing nothing leaves x_def = x bit for bit: its bounds are the start bounds
-    # exactly (no rounding slack) and a zero bound there is a real zero (blocked).
+    # exactly (no rounding slack). A zero start bound blocks the vertex for every map.
     nothing = not (D.any() or u.any())
     s = 1.0 if nothing else sigma * (1.0 - K.PREDICT_SLACK_REL)  # as predicted_bounds forms it
-    hits, n_blocked = predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r,
-                                     unbounded=not nothing)
+    hits, n_blocked = predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r)
 
     def quantile():
         # Blocked vertices hold -inf, below every kept ratio: shift the index past them.

@@ -21,16 +21,19 @@ from ..parallel import Pace, named
 from .kernels import fit_build
 
 
-def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, unbounded, r, n_chunks):
+def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, r, n_chunks):
     # Per vertex, with the same operations (and order) as
     #   predict_passes(apply_map(x, D, u, c), 2 x - x_prev, predicted_bounds(d_start, ...)):
     #   x_def = x + (D (x - c) + u), rounded to the stored dtype;
     #   dist  = |x_pred - x_def| with x_pred = 2 x - x_prev in float64;
     #   b     = gamma * max(0, min(r_q, s * d_start) - thickness), s = sigma (1 - slack).
-    # A blocked vertex (moving, b not > 0) gets r = -inf, so that the non-blocked
-    # ratios are exactly the top N - n_blocked entries of r in sorted order. With
-    # `unbounded` such a vertex is not left out but gets r = +inf: a predicted bound of
-    # 0 is only a lower bound, the recomputed one may be tiny and positive.
+    # A blocked vertex (moving, with a zero start bound b0 = gamma * max(0, min(r_q,
+    # d_start) - thickness)) gets r = -inf, so that the non-blocked ratios are exactly
+    # the top N - n_blocked entries of r in sorted order. A vertex whose start bound is
+    # positive but whose predicted bound b is 0 (the map's sigma may shrink its gap
+    # into the thickness) is not left out but gets r = +inf: a predicted bound of 0 is
+    # then only a lower bound, the recomputed one may be tiny and positive. For doing
+    # nothing (s = 1) b is b0, so both readings agree.
     # x, x_prev are flat (3N,) views and the index is unsigned: with a constant
     # stride 3 and no negative-index wraparound LLVM vectorises the loop (~4x).
     n = d_start.shape[0]
@@ -64,13 +67,17 @@ def _predict_py(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, out32, un
             e2 = (2.0 * a2 - np.float64(x_prev[i3 + np.uint64(2)])) - v2
             dist = np.sqrt((e0 * e0 + e1 * e1) + e2 * e2)
             # np.minimum / np.maximum semantics (NaN propagates), without branches.
-            t = s * d_start[i]
+            d = d_start[i]
+            t = s * d
             t = r_q if r_q < t else t
             t = t - thickness
             b = gamma * (0.0 if t < 0.0 else t)
+            t0 = r_q if r_q < d else d
+            t0 = t0 - thickness
+            b0 = gamma * (0.0 if t0 < 0.0 else t0)
             moving = dist > 0.0
             zero_b = moving & ~(b > 0.0)
-            is_blocked = zero_b & ~unbounded
+            is_blocked = zero_b & ~(b0 > 0.0)
             rv = dist / b  # IEEE division (error_model="numpy"); masked where b is not > 0
             rv = rv if moving & ~zero_b else (np.inf if zero_b else 0.0)
             r[i] = -np.inf if is_blocked else rv
@@ -90,20 +97,20 @@ _predict_parallel = njit(cache=True, parallel=True, error_model="numpy")(named(_
 _PREDICT_PACE = Pace()
 
 
-def predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r, unbounded=True):
+def predict_kernel(x_prev, x, D, u, c, d_start, s, r_q, thickness, gamma, r):
     """Fill `r` (N,) float64 with the candidate's ratios; return ``(hits, n_blocked)``.
 
     Inputs as validated by `penfree.core.fit.auto.select_step`; ``s = sigma * (1 - PREDICT_SLACK_REL)``
-    (1 for doing nothing, whose bounds are the start bounds exactly). `unbounded`: a
-    moving vertex whose predicted bound is 0 gets r = +inf instead of being left out
-    (False only for doing nothing, where a zero bound is exact).
+    (1 for doing nothing, whose bounds are the start bounds exactly). A moving vertex
+    whose start bound is 0 is blocked (left out, r = -inf) for every candidate; one
+    whose start bound is positive but whose predicted bound is 0 gets r = +inf.
     The chunks are fixed (`REDUCTION_CHUNKS`) and the sums are integers, so the result
     does not depend on the thread count.
     """
     out32 = x.dtype == np.float32
     res = fit_build(x.shape[0], _PREDICT_PACE, _predict_serial, _predict_parallel,
                     x_prev.reshape(-1), x.reshape(-1), D, u, c, d_start, s, r_q, thickness, gamma, out32,
-                    bool(unbounded), r, K.REDUCTION_CHUNKS)
+                    r, K.REDUCTION_CHUNKS)
     return int(res[0]), int(res[1])
 
 

@@ -212,12 +212,17 @@ def _scene_step(kind, dtype, offset, seed):
     return x_prev, x, d, r_q
 
 
+#: The thickness of the fused-prediction tests; `_scene_step`'s vertex 7 rests just above it.
+_THICKNESS = 0.01
+
+
 @pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
 @pytest.mark.parametrize("kind, offset", [("rods", 0.0), ("cloth", 0.0), ("cloth", 1e3)],
                          ids=["rods", "cloth", "far-from-origin"])
 def test_fused_prediction_matches_apply_then_predict(kind, offset, dtype):
     x_prev, x, d, r_q = _scene_step(kind, dtype, offset, seed=11)
-    thickness = 0.01
+    thickness = _THICKNESS
+    d[7] = thickness * (1.0 + 1e-9)  # a positive start bound that a shrinking map's sigma takes to 0
     m = _fit.fit_moments(x_prev, x)
     x_pred = 2.0 * x.astype(np.float64) - x_prev.astype(np.float64)
     eps = np.finfo(dtype).eps
@@ -228,29 +233,33 @@ def test_fused_prediction_matches_apply_then_predict(kind, offset, dtype):
         x_def, _ = _fit.apply_map(x, cand.D, cand.u, m.c)
         nothing = cand.name == "none"
         # Doing nothing: the start bounds exactly, zero bounds blocked (left out).
-        # Any map: lower bounds, and a zero lower bound gives r = inf (counted).
+        # Any map: lower bounds; a zero start bound is blocked as for doing nothing, a
+        # positive one that the map's sigma takes to 0 gives r = inf (counted).
         sigma = 1.0 / (1.0 - K.PREDICT_SLACK_REL) if nothing else cand.sigma_lb
         b = predicted_bounds(d, sigma, r_q, thickness)
-        ref = predict_passes(x_def, x_pred, b, unbounded=not nothing)
+        b0 = K.DEFAULT_GAMMA * np.maximum(0.0, np.minimum(r_q, d) - thickness)
+        ref = predict_passes(x_def, x_pred, b, b_start=None if nothing else b0)
         got = predict_map_passes(x_prev, x, cand.D, cand.u, m.c, d, cand.sigma_lb, r_q, thickness)
         s = 1.0 if nothing else cand.sigma_lb * (1.0 - K.PREDICT_SLACK_REL)
-        counts = predict_kernel(x_prev, x, cand.D, cand.u, m.c, d, s, r_q, thickness, K.DEFAULT_GAMMA, r_buf,
-                                unbounded=not nothing)
+        counts = predict_kernel(x_prev, x, cand.D, cand.u, m.c, d, s, r_q, thickness, K.DEFAULT_GAMMA, r_buf)
         assert counts == (round(ref["hit_rate"] * len(x)), ref["n_blocked"])
         assert list(got) == list(ref)
         for key in ("hit_rate", "n_blocked", "k_1pct", "k_any"):
             assert got[key] == ref[key], (cand.name, key)
-        assert ref["n_blocked"] == (2 if nothing else 0)
+        assert ref["n_blocked"] == 2  # vertices 5 and 6, for every candidate
         # Per vertex: x_def may differ from apply_map's in its last bit (apply_map fuses
         # multiply-adds; a float32 store can then round the other way), so r may differ
         # by one unit of x_def's dtype at the largest coordinate, divided by the bound.
         dist = np.linalg.norm(x_pred - x_def.astype(np.float64), axis=1)
         zero_b = (dist > 0) & ~(b > 0)
-        r_ref = np.where(zero_b, -np.inf if nothing else np.inf,
-                         np.where(dist > 0, dist / np.where(b > 0, b, 1.0), 0.0))
+        blocked = zero_b & ~(b0 > 0)
+        r_ref = np.where(blocked, -np.inf, np.where(zero_b, np.inf,
+                         np.where(dist > 0, dist / np.where(b > 0, b, 1.0), 0.0)))
         tol = np.where(b > 0, 2.0 * np.sqrt(3.0) * eps * np.abs(x_def).max() / np.where(b > 0, b, 1.0), 0.0)
-        assert np.array_equal(np.isinf(r_buf), zero_b)
-        assert nothing or got["k_any"] == K.K_UNBOUNDED
+        assert np.array_equal(r_buf == -np.inf, blocked) and np.array_equal(r_buf == np.inf, zero_b & ~blocked)
+        assert np.flatnonzero(blocked).tolist() == [5, 6]
+        # Vertex 7 counts as r = inf exactly for the maps whose sigma may shrink its gap.
+        assert (got["k_any"] == K.K_UNBOUNDED) == (not nothing and s * d[7] <= thickness)
         ok = ~zero_b
         assert np.all(np.abs(r_buf[ok] - r_ref[ok]) <= tol[ok]), cand.name
         tol_q = tol[ok].max()
@@ -387,3 +396,32 @@ def test_upper_quantile_takes_numpy_for_nan_and_missed_thresholds(rng):
     assert not auto_kernels._upper_select(r, 49000)[2]
     assert not auto_kernels._upper_select(np.zeros(50000), 49000)[2]  # all at the threshold
     assert auto_kernels._upper_select(rng.random(50000), 49500)[2]
+
+
+def test_a_zero_start_bound_is_left_out_for_every_candidate():
+    # A recording with a few pre-existing crossings (or vertices resting inside the
+    # thickness): 5% of the vertices have a zero start bound. They are stuck whatever
+    # the map, so they are left out of K for every candidate as for doing nothing;
+    # counting them as r = inf made every moving candidate's K_1pct unbounded, and
+    # `auto` then never moved such a recording.
+    rng = np.random.default_rng(22)
+    n = 400
+    x = rng.uniform(-1, 1, (n, 3))
+    v = np.array([0.01, 0.005, 0.0])
+    x_prev = x - v - 1e-4 * rng.standard_normal((n, 3))
+    thickness, r_q = 0.05, 0.06  # bounds 0.0045: doing nothing needs 3 passes
+    d = np.full(n, r_q)
+    stuck = np.arange(0, n, 20)  # 5 %
+    d[stuck[::2]] = 0.0  # crossing
+    d[stuck[1::2]] = 0.5 * thickness  # inside the thickness
+    none = predict_map_passes(x_prev, x, np.zeros((3, 3)), np.zeros(3), np.zeros(3), d, 1.0, r_q, thickness)
+    shift = predict_map_passes(x_prev, x, np.zeros((3, 3)), v, np.zeros(3), d, 1.0, r_q, thickness)
+    assert none["n_blocked"] == shift["n_blocked"] == len(stuck)
+    assert shift["k_1pct"] < none["k_1pct"] < K.K_UNBOUNDED
+    # The numpy reading agrees: blocked where the start bound is 0, whatever the map.
+    b0 = K.DEFAULT_GAMMA * np.maximum(0.0, np.minimum(r_q, d) - thickness)
+    ref = predict_passes(x + v, 2.0 * x - x_prev, b0 * (1.0 - K.PREDICT_SLACK_REL), b_start=b0)
+    assert ref["n_blocked"] == len(stuck) and ref["k_1pct"] == shift["k_1pct"]
+    res, table = select_step(x_prev, x, d, r_q=r_q, thickness=thickness)
+    assert res.model != "none"
+    assert np.allclose(res.x_def - x, v, atol=2e-3)

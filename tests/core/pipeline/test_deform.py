@@ -111,6 +111,34 @@ def test_particles_stay_above_a_mesh_floor(model, thickness):
     assert not through.ok and {p[0] for p in through.pairs} == {"vf:0"} and through.n_violations == 4
 
 
+def test_auto_moves_a_sheet_with_a_few_vertices_inside_a_collider():
+    """A recording with pre-existing crossings: 3 of 100 vertices of a sheet sliding over
+    a box sit 0.002 inside its top (within the thickness 0.01). Their zero bounds were
+    counted as unbounded for every moving candidate (more than 1% of the vertices), so
+    `auto` did nothing on steps a translation takes exactly to the prediction."""
+    from penfree.sequence import Obstacle
+
+    B = np.array([[x, y, z] for z in (-1.0, 0.0) for y in (-1.0, 1.0) for x in (-1.0, 1.0)])
+    BF = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4], [2, 6, 3], [3, 6, 7],
+                   [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])
+    n = 10
+    u, v = np.meshgrid(np.linspace(-0.3, 0.3, n), np.linspace(-0.3, 0.3, n), indexing="ij")
+    x0 = np.c_[u.ravel(), v.ravel(), np.full(n * n, 0.05)]
+    idx = np.arange(n * n).reshape(n, n)
+    F = np.vstack([np.c_[idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[:-1, 1:].ravel()],
+                   np.c_[idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()]])
+    x0[[22, 45, 67], 2] = -0.002
+    frames = np.stack([x0 + [0.02 * s, 0.01 * s, 0.0] for s in range(6)])
+    seq = Sequence(positions=frames, faces=F, thickness=0.01, contact_radius=0.1,
+                   obstacles=[Obstacle(name="box", positions=B, faces=BF)]).validate()
+    out = deform_sequence(seq, model="auto").steps
+    assert "none" not in out["model"].tolist()
+    for k, s in enumerate(out["frame"]):
+        x, x_def = seq.positions[s], out["deformed"][k]
+        np.testing.assert_allclose(x_def, 2 * x - seq.positions[s - 1], rtol=0, atol=1e-12)
+        assert verify_step(x, x_def, faces=F, thickness=0.01, obstacles=[(B, B, BF, None)], pre_existing=True).ok
+
+
 def _orient(P, v, f):
     """Exact sign-carrying volume of vertex v over face f (rationals)."""
     from fractions import Fraction
