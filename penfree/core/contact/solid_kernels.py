@@ -343,15 +343,21 @@ def _near(P0, P1, lo, hi):
 
 
 @njit(cache=True)
-def _add_plane(state, F0, F1, static, axis, P0, P1, d, thickness, slack=0.0):
+def _add_plane(state, F0, F1, static, axis, P0, P1, d, thickness, slack=0.0, ta=0.0, tb=1.0):
     """Fold the plane test of direction `d` (3,) into a primitive's `state` (`slack`: a
-    further rounding bound of the positions, per unit of |n|, added to both ends')."""
+    further rounding bound of the positions, per unit of |n|, added to both ends').
+
+    P0, P1 are the primitive at times `ta` and `tb` of the step (a piece of it); a moving
+    solid is there the blend of its two frames, whose support is ``(1 - t) h_0 + t h_1``
+    (exact for the whole step, t = 0 and 1)."""
     n0, n1, n2 = _nonzero(d[0], d[1], d[2])
     h0, eh0 = support(F0, axis, n0, n1, n2)
     if static:
         h1, eh1 = h0, eh0
     else:
         h1, eh1 = support(F1, axis, n0, n1, n2)
+        if ta != 0.0 or tb != 1.0:
+            h0, eh0, h1, eh1 = (*_blend(h0, eh0, h1, eh1, ta), *_blend(h0, eh0, h1, eh1, tb))
     d0, e0 = plane_gap(P0, n0, n1, n2, thickness, h0, eh0)
     d1, e1 = plane_gap(P1, n0, n1, n2, thickness, h1, eh1)
     nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
@@ -377,6 +383,15 @@ def _add_plane(state, F0, F1, static, axis, P0, P1, d, thickness, slack=0.0):
         state[6] = 1.0 if d1 >= d0 else 0.0  # not deeper at the end (the rule of a pre-existing contact)
 
 
+@njit(cache=True)
+def _blend(h0, eh0, h1, eh1, t):
+    """The support ``(1 - t) h0 + t h1`` of a moving solid at a dyadic time t (1 - t exact)
+    and its rounding bound: the two ends' bounds blended, plus the two products' and the
+    sum's rounding (a unit in the last place of each term, taken four times over)."""
+    a, b = (1.0 - t) * h0, t * h1
+    return a + b, (1.0 - t) * eh0 + t * eh1 + 4.0 * _EPS * (abs(a) + abs(b)) + 1e-300
+
+
 #: Bisections of a step's path, at most, for a primitive that no single plane keeps clear
 #: over the whole step (2^6 = 64 pieces).
 PIECE_DEPTH = 6
@@ -396,18 +411,21 @@ def _at(P0, P1, t, out):
 
 
 @njit(cache=True)
-def _pieces_through(F, axis, P0, P1, Pa, Pb, dirs, state, thickness):
-    """Whether the path P0 -> P1 against a static solid splits into pieces [ta, tb] (by
-    bisection, at most `PIECE_DEPTH` deep) each kept at least `thickness` from the solid
-    by one plane (a quick direction at the piece's start) at both of its ends; and the
-    smallest lower bound of the distance over the pieces. `state` is scratch for
-    `_add_plane` (a piece's own test).
+def _pieces_through(F0, F1, static, axis, P0, P1, Pa, Pb, dirs, state, thickness):
+    """Whether the path P0 -> P1 splits into pieces [ta, tb] (by bisection, at most
+    `PIECE_DEPTH` deep) each kept at least `thickness` from the solid by one plane (a
+    quick direction at the piece's start) at both of its ends; and the smallest lower
+    bound of the distance over the pieces. `state` is scratch for `_add_plane` (a piece's
+    own test).
 
-    A piece is a straight-line motion too, so the ends decide it as they decide the whole
-    step. Its ends are computed points: the bound adds their rounding (a few units in the
-    last place of the coordinates) to each plane gap's. A primitive moving far along a
-    curved solid passes this where one plane for the whole step cannot (a sheet sliding
-    over a ball by a fraction of its faces' size).
+    A piece is a straight-line motion too, and a moving solid's support is linear in t
+    over a piece as over the step (`_add_plane`), so the ends decide it as they decide
+    the whole step: the gap to one plane is a minimum of linear functions of t. Its ends
+    are computed points: the bound adds their rounding (a few units in the last place of
+    the coordinates) to each plane gap's. A primitive moving far along a curved solid
+    passes this where one plane for the whole step cannot (a sheet sliding over a ball by
+    a fraction of its faces' size). The quick directions of a piece are taken against the
+    solid's nearer frame (any direction is sound; they are only guesses).
     """
     stack = np.empty((PIECE_DEPTH + 2, 3))
     stack[0, 0], stack[0, 1], stack[0, 2] = 0.0, 1.0, 0.0
@@ -418,8 +436,9 @@ def _pieces_through(F, axis, P0, P1, Pa, Pb, dirs, state, thickness):
         slack = 4.0 * _EPS * max(_at(P0, P1, ta, Pa), _at(P0, P1, tb, Pb))  # the computed ends
         state[:] = 0.0
         state[4] = state[5] = -np.inf
-        for r in range(quick_directions(F, axis, Pa, dirs)):
-            _add_plane(state, F, F, True, axis, Pa, Pb, dirs[r], thickness, slack)
+        near = F0 if static or ta < 0.5 else F1
+        for r in range(quick_directions(near, axis, Pa, dirs)):
+            _add_plane(state, F0, F1, static, axis, Pa, Pb, dirs[r], thickness, slack, ta, tb)
         if state[0] > 0.0:
             lb = min(lb, state[4])
         elif depth < PIECE_DEPTH:
@@ -461,8 +480,8 @@ def _verdict_py(x_t0, x_t1, S, F0, F1, static, axis, thickness, pre_existing, lo
                 for r in range(m):
                     _add_plane(state, F0, F1, static, axis, P0, P1, dirs[r], thickness)
                 within = upper < thickness
-                if state[0] == 0.0 and state[2] > 0.0 and static and moved:
-                    ok, lb = _pieces_through(F0, axis, P0, P1, Pa, Pb, dirs, piece, thickness)
+                if state[0] == 0.0 and state[2] > 0.0 and moved:
+                    ok, lb = _pieces_through(F0, F1, static, axis, P0, P1, Pa, Pb, dirs, piece, thickness)
                     if ok:
                         state[0], state[4] = 1.0, max(state[4], lb)
             through, free_both, clear0, free0 = state[0] > 0, state[1] > 0, state[2] > 0, state[3] > 0

@@ -27,11 +27,12 @@ vertices at both ends of the step against that one plane:
 
 The direction only decides how permissive the test is, never whether it is sound:
 every plane used is a supporting plane, evaluated with a rigorous rounding bound
-(ties count as contact). Against a static solid, a primitive that no single plane
-keeps clear over the whole step is tried again on the step bisected (up to
+(ties count as contact). A primitive clear at the start that no single plane keeps
+clear over the whole step is tried again on the step bisected (up to
 `solid_kernels.PIECE_DEPTH` levels: 64 pieces, each a straight-line motion with its
-own plane at its start), so a sheet sliding over a ball passes where one plane for
-the whole step cannot. It still refuses some paths that clear a curved solid and
+own plane at its start, against the solid of the piece's ends: for a moving solid, the
+interpolation above at the piece's times), so a sheet sliding over a ball passes where
+one plane for the whole step cannot. It still refuses some paths that clear a curved solid and
 never accepts one that enters it. Primitives whose swept box stays farther than the
 thickness from the solid's box are not tested (the boxes' distance bounds the
 distance).
@@ -174,8 +175,8 @@ def solid_verdict(x_t0, x_t1, simplices, solid: SolidFrames, thickness, pre_exis
     no plane proves outside and no point proves touching.
     Directions are tried in two rounds: cheap ones for every primitive near the
     solid (`solid_kernels.quick_directions`), then the searched ones
-    (`full_directions`) for the primitives still undecided; against a static solid,
-    a primitive clear at the start that is still undecided then has its path bisected
+    (`full_directions`) for the primitives still undecided; a primitive clear at the
+    start that is still undecided then has its path bisected
     (module docstring).
     """
     (lo0, hi0), (lo1, hi1) = (_box(f, solid.axis) for f in solid.ends)
