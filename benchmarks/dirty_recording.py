@@ -15,12 +15,18 @@ judge `deform` and `auto` on (`eval_client.py`, `eval_contact.py`):
   projection inside the face) is moved toward the face so that its distance becomes F
   times what it was.
 
+* ``--push K --offset X,Y,Z``: K vertices (seeded choice, of component ``--component``
+  when given) are displaced by the offset in every frame: through another part of the
+  scene, pre-existing self-intersections (a stack of cloth layers with a few vertices
+  of one layer pushed through the next).
+
 Nearest faces are found by brute force over the obstacle's faces (for small colliders:
 the samples' box has 12). The input is never modified; the output is created exclusively
 unless ``--overwrite``.
 
     python benchmarks/dirty_recording.py samples/cloth_drape_box.h5 -o dirty.h5 --dent 16
     python benchmarks/dirty_recording.py samples/cloth_drape_box.h5 -o sunk.h5 --sink 0.45
+    python benchmarks/dirty_recording.py samples/falling_stack.h5 -o crossed.h5 --push 12 --offset 0,0,0.06 --component 0
 """
 
 from __future__ import annotations
@@ -100,6 +106,17 @@ def dirty(X, meshes, near, dent=0, depth=None, sink=None, seed=0):
     return X, picked
 
 
+def push(X, k, offset, pool, seed=0):
+    """`X` (float64 copy) with `k` vertices of `pool` (seeded choice) moved by `offset` in
+    every frame, and the chosen vertices."""
+    X = np.array(X, dtype=np.float64)
+    if len(pool) < k:
+        raise SystemExit(f"dirty_recording: only {len(pool)} vertices to push; asked for {k}")
+    picked = np.sort(np.random.default_rng(seed).choice(pool, k, replace=False))
+    X[:, picked] += offset
+    return X, picked
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("input")
@@ -110,6 +127,9 @@ def main(argv=None):
                     help="scale the distance of vertices near an obstacle face by this factor (0 < F <= 1)")
     ap.add_argument("--near", type=float, default=None,
                     help="how near a face counts (default: 1.25 contact radii, where resting contact sits)")
+    ap.add_argument("--push", type=int, default=0, help="vertices displaced by --offset in every frame")
+    ap.add_argument("--offset", default="0,0,0", help="X,Y,Z displacement of the pushed vertices")
+    ap.add_argument("--component", type=int, default=None, help="push vertices of this component only")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--overwrite", action="store_true")
     a = ap.parse_args(argv)
@@ -124,11 +144,30 @@ def main(argv=None):
         meshes = _meshes(f)
         h = float(f.attrs.get("thickness", 0.0))
         r = float(f.attrs.get("contact_radius", h))
-    if not meshes:
-        raise SystemExit(f"dirty_recording: {a.input} has no mesh obstacle (obstacles/<name>/vertices + faces)")
-    near = a.near if a.near is not None else 1.25 * r
-    depth = a.depth if a.depth is not None else (h / 3.0 if h > 0 else 1e-3 * near)
-    Xd, picked = dirty(X, meshes, near, a.dent, depth, a.sink, a.seed)
+        comp = f["components"][...] if "components" in f else None
+    Xd, msg = X, []
+    if a.push:
+        offset = np.array([float(v) for v in a.offset.split(",")])
+        if offset.shape != (3,):
+            raise SystemExit(f"dirty_recording: --offset must be X,Y,Z; got {a.offset!r}")
+        pool = np.arange(X.shape[1])
+        if a.component is not None:
+            if comp is None:
+                raise SystemExit(f"dirty_recording: {a.input} has no components dataset for --component")
+            pool = np.flatnonzero(comp == a.component)
+        Xd, pushed = push(Xd, a.push, offset, pool, a.seed)
+        msg.append(f"pushed {len(pushed)} vertices {pushed.tolist()} by {offset.tolist()}")
+    if a.dent or a.sink is not None:
+        if not meshes:
+            raise SystemExit(f"dirty_recording: {a.input} has no mesh obstacle (obstacles/<name>/vertices + faces)")
+        near = a.near if a.near is not None else 1.25 * r
+        depth = a.depth if a.depth is not None else (h / 3.0 if h > 0 else 1e-3 * near)
+        Xd, picked = dirty(Xd, meshes, near, a.dent, depth, a.sink, a.seed)
+        msg.append(f"dented {len(picked)} vertices {picked.tolist()} to {depth:g} inside")
+        if a.sink is not None:
+            msg.append(f"near vertices sunk to {a.sink:g} of their distance")
+    if not msg:
+        raise SystemExit("dirty_recording: nothing to do (give --dent, --sink or --push)")
     tmp = a.output + ".tmp"
     shutil.copyfile(a.input, tmp)
     with h5py.File(tmp, "r+") as f:
@@ -136,8 +175,7 @@ def main(argv=None):
         cmd = "python benchmarks/dirty_recording.py " + " ".join(sys.argv[1:] if argv is None else argv)
         f.attrs["source"] = f"{f.attrs.get('source', '')}\ndirty copy: {cmd}".strip()
     os.replace(tmp, a.output)
-    print(f"{a.output}: dented {len(picked)} vertices {picked.tolist()} to {depth:g} inside"
-          + (f"; near vertices sunk to {a.sink:g} of their distance" if a.sink is not None else ""))
+    print(f"{a.output}: " + "; ".join(msg))
 
 
 if __name__ == "__main__":
