@@ -11,7 +11,7 @@ from penfree.core.verify.path import verify_step
 from penfree.errors import InputError
 from penfree.sequence import Sequence
 
-from _geom import rot, two_sheets
+from _geom import grid, rot, two_sheets
 
 
 def _moving_sheets(gap, thickness, T=5):
@@ -69,6 +69,11 @@ def test_distances_outside_the_supported_range_are_refused(name, value):
             verify_step(seq.positions[0], seq.positions[1], faces=seq.faces, thickness=value)
 
 
+#: Outward triangles of a box whose corners are listed x fastest, then y, then z.
+_BOX_FACES = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4], [2, 6, 3], [3, 6, 7],
+                       [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])
+
+
 @pytest.mark.parametrize("thickness", [0.0, 0.01])
 @pytest.mark.parametrize("model", ["affine", "translation", "per-component", "auto"])
 def test_a_sheet_touching_an_obstacle_is_not_pushed_through_it(model, thickness):
@@ -79,8 +84,7 @@ def test_a_sheet_touching_an_obstacle_is_not_pushed_through_it(model, thickness)
     from penfree.sequence import Obstacle
 
     B = np.array([[x, y, z] for z in (-1.0, 0.0) for y in (0.0, 1.0) for x in (0.0, 1.0)])
-    BF = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4], [2, 6, 3], [3, 6, 7],
-                   [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])
+    BF = _BOX_FACES
     x = np.array([[0.3, 0.3, 0], [0.7, 0.3, 0], [0.7, 0.7, 0], [0.3, 0.7, 0.0]])
     F = np.array([[0, 1, 2], [0, 2, 3]])
     seq = Sequence(positions=np.stack([x + [0, 0, 0.2], x]), faces=F, thickness=thickness,
@@ -119,24 +123,19 @@ def test_auto_moves_a_sheet_with_a_few_vertices_inside_a_collider():
     from penfree.sequence import Obstacle
 
     B = np.array([[x, y, z] for z in (-1.0, 0.0) for y in (-1.0, 1.0) for x in (-1.0, 1.0)])
-    BF = np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4], [2, 6, 3], [3, 6, 7],
-                   [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]])
-    n = 10
-    u, v = np.meshgrid(np.linspace(-0.3, 0.3, n), np.linspace(-0.3, 0.3, n), indexing="ij")
-    x0 = np.c_[u.ravel(), v.ravel(), np.full(n * n, 0.05)]
-    idx = np.arange(n * n).reshape(n, n)
-    F = np.vstack([np.c_[idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[:-1, 1:].ravel()],
-                   np.c_[idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()]])
+    box = Obstacle(name="box", positions=B, faces=_BOX_FACES)
+    V, F = grid(10)
+    x0 = V * (0.6 / 9) + [-0.3, -0.3, 0.05]
     x0[[22, 45, 67], 2] = -0.002
     frames = np.stack([x0 + [0.02 * s, 0.01 * s, 0.0] for s in range(6)])
-    seq = Sequence(positions=frames, faces=F, thickness=0.01, contact_radius=0.1,
-                   obstacles=[Obstacle(name="box", positions=B, faces=BF)]).validate()
+    seq = Sequence(positions=frames, faces=F, thickness=0.01, contact_radius=0.1, obstacles=[box]).validate()
     out = deform_sequence(seq, model="auto").steps
     assert "none" not in out["model"].tolist()
     for k, s in enumerate(out["frame"]):
         x, x_def = seq.positions[s], out["deformed"][k]
         np.testing.assert_allclose(x_def, 2 * x - seq.positions[s - 1], rtol=0, atol=1e-12)
-        assert verify_step(x, x_def, faces=F, thickness=0.01, obstacles=[(B, B, BF, None)], pre_existing=True).ok
+        assert verify_step(x, x_def, faces=F, thickness=0.01, obstacles=[(B, B, box.faces, None)],
+                           pre_existing=True).ok
 
 
 def _orient(P, v, f):
