@@ -37,7 +37,7 @@ from penfree.formats.result import DeformResult  # noqa: E402
 DEFAULT = ["samples/twisting_cloth_contact.h5", "samples/twisted_cables.h5", "samples/cloth_drape_box.h5"]
 
 
-def pair_oracle(path, seq, steps, samples=33):
+def pair_oracle(obs, seq, steps, samples=33):
     """The guarantee's reading of a recording that may start dirty, per scene-obstacle pair.
 
     Every vertex-face and edge-edge pair of the scene's triangles with a static mesh
@@ -47,12 +47,12 @@ def pair_oracle(path, seq, steps, samples=33):
     inside, deeper)``: the smallest distance over the pairs that start at least the
     thickness apart (the guarantee: never below the thickness), over the pairs that start
     closer (resting contact or a crossing: never 0), and the number of vertices that
-    start on or behind a half-space and end deeper (the guarantee: none).
+    start on or behind a half-space and end deeper (the guarantee: none). `obs`: the file's
+    obstacles as `check.load` reads them.
     """
     beyond, inside, deeper = np.inf, np.inf, 0
     if not seq.obstacles or seq.faces is None:
         return beyond, inside, deeper
-    _, _, _, attrs = check.load(path)
     h = float(seq.thickness)
     F = np.asarray(seq.faces, dtype=np.int64)
     E = check.unique_edges(F)
@@ -63,7 +63,7 @@ def pair_oracle(path, seq, steps, samples=33):
         if np.array_equal(x0, x1):
             continue
         query = h + float(np.median(np.linalg.norm(x0[E[:, 0]] - x0[E[:, 1]], axis=1)))
-        for ob in attrs["obstacles"].values():
+        for ob in obs.values():
             if "normal" in ob:
                 nv = np.asarray(ob["normal"], dtype=np.float64)
                 d0, d1 = ((x @ nv - float(ob["offset"])) / np.linalg.norm(nv) for x in (x0, x1))
@@ -98,12 +98,11 @@ def pair_oracle(path, seq, steps, samples=33):
     return beyond, inside, deeper
 
 
-def obstacle_oracle(path, seq, steps):
-    """Smallest scene-obstacle distance over every written path (inf without obstacles)."""
+def obstacle_oracle(obs, seq, steps):
+    """Smallest scene-obstacle distance over every written path (inf without obstacles);
+    `obs` as `pair_oracle` takes it."""
     if not seq.obstacles:
         return np.inf
-    _, _, _, attrs = check.load(path)
-    obs = attrs["obstacles"]
     best = np.inf
     for k, s in enumerate(steps["frame"]):
         x0 = np.asarray(seq.positions[s], dtype=np.float64)
@@ -128,15 +127,16 @@ def main(argv=None):
     print("|---|---|---|---|---|---|---|---|---|")
     for path in a.samples:
         seq = read_sequence(path)
+        obs = check.load(path)[3]["obstacles"]
         for model in a.models:
             t0 = time.perf_counter()
             out = deform_sequence(seq, model=model)
             summary = summarize_steps(out.steps)
             moving = sum(str(m) not in ("none", "translation") for m in out.steps["model"])
             rep = verify_result(DeformResult(sequence=seq, steps=out.steps, origin=path))
-            oracle = obstacle_oracle(path, seq, out.steps)
+            oracle = obstacle_oracle(obs, seq, out.steps)
             ok = oracle > max(seq.thickness, 1e-12)
-            beyond, inside, deeper = pair_oracle(path, seq, out.steps)
+            beyond, inside, deeper = pair_oracle(obs, seq, out.steps)
             ok_beyond, ok_inside = beyond >= seq.thickness, inside > 0 and deeper == 0
             S = len(out.steps["frame"])
             print(f"| {os.path.basename(path)} | {model} | {S} | {moving} ({100 * moving / S:.0f}%) | "
