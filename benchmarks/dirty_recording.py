@@ -1,8 +1,8 @@
-"""A dirty copy of a recording with mesh obstacles: vertices inside a collider, or sunk into the thickness.
+"""A dirty copy of a recording: vertices inside a collider, sunk into the thickness, or through the scene.
 
 Real OGC-family recordings are not as clean as the bundled samples: a few vertices end
-up inside a collider (pre-existing crossings), and cloth resting on one may sit a little
-inside the thickness the file declares. This writes such a copy of a clean recording, to
+up inside a collider or through another part of the scene (pre-existing crossings), and
+cloth resting on a collider may sit a little inside the thickness the file declares. This writes such a copy of a clean recording, to
 judge `deform` and `auto` on (`eval_client.py`, `eval_contact.py`):
 
 * ``--dent K``: K vertices (seeded choice among those within ``--near`` (default 1.25
@@ -42,8 +42,8 @@ import numpy as np
 
 def nearest_faces(P, V, F):
     """Per point of `P` (N, 3): signed distance to the plane of its nearest face of the mesh
-    (V, F) among the faces its projection falls inside (inf where none), that face's unit
-    normal (N, 3), and the face index (-1 where none)."""
+    (V, F) among the faces its projection falls inside (inf where none), and that face's
+    unit normal (N, 3)."""
     a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
     n = np.cross(b - a, c - a)
     n /= np.linalg.norm(n, axis=1, keepdims=True)
@@ -57,24 +57,20 @@ def nearest_faces(P, V, F):
     j = dist.argmin(axis=1)
     rows = np.arange(len(P))
     found = np.isfinite(dist[rows, j])
-    return np.where(found, h[rows, j], np.inf), n[j], np.where(found, j, -1)
+    return np.where(found, h[rows, j], np.inf), n[j]
 
 
 def _meshes(f):
-    out = []
-    for name, g in f.get("obstacles", {}).items():
-        if "vertices" in g and "faces" in g:
-            V = np.asarray(g["vertices"][...], dtype=np.float64)
-            out.append((name, V, np.asarray(g["faces"][...], dtype=np.int64)))
-    return out
+    """``[(vertices (M, 3) or (T, M, 3), faces)]`` of the file's mesh obstacles."""
+    return [(np.asarray(g["vertices"][...], dtype=np.float64), np.asarray(g["faces"][...], dtype=np.int64))
+            for g in f.get("obstacles", {}).values() if "vertices" in g and "faces" in g]
 
 
 def _nearest(x, meshes, s):
     """Signed plane distance and normal of each vertex of frame `x` to its nearest mesh face."""
     best_h, best_n = np.full(len(x), np.inf), np.zeros((len(x), 3))
-    for _, V, F in meshes:
-        Vs = V[s] if V.ndim == 3 else V
-        h, n, _ = nearest_faces(x, Vs, F)
+    for V, F in meshes:
+        h, n = nearest_faces(x, V[s] if V.ndim == 3 else V, F)
         closer = np.abs(h) < np.abs(best_h)
         best_h[closer], best_n[closer] = h[closer], n[closer]
     return best_h, best_n
@@ -83,21 +79,16 @@ def _nearest(x, meshes, s):
 def dirty(X, meshes, near, dent=0, depth=None, sink=None, seed=0):
     """The dirty frames (float64 copy of `X` (T, N, 3)) and the dented vertices."""
     X = np.array(X, dtype=np.float64)
-    T = X.shape[0]
-    hs, ns = zip(*(_nearest(X[s], meshes, s) for s in range(T)))
+    hs, ns = zip(*(_nearest(X[s], meshes, s) for s in range(X.shape[0])))
     H, Nrm = np.stack(hs), np.stack(ns)  # (T, N), (T, N, 3)
     is_near = (H >= 0.0) & (H <= near)
     picked = np.zeros(0, np.int64)
     if dent:
-        pool = np.flatnonzero(is_near[-1])
-        if len(pool) < dent:
-            raise SystemExit(f"dirty_recording: only {len(pool)} vertices lie within {near:g} of an obstacle face "
-                             f"at the last frame; asked to dent {dent}")
-        picked = np.sort(np.random.default_rng(seed).choice(pool, dent, replace=False))
+        picked = _choose(np.flatnonzero(is_near[-1]), dent, seed,
+                         f"vertices within {near:g} of an obstacle face at the last frame")
         for v in picked:
             first = int(np.flatnonzero(is_near[:, v])[0])
-            for s in range(first, T):
-                X[s, v] -= (H[s, v] + depth) * Nrm[s, v]
+            X[first:, v] -= (H[first:, v] + depth)[:, None] * Nrm[first:, v]
     if sink is not None:
         keep = np.ones(X.shape[1], bool)
         keep[picked] = False
@@ -110,11 +101,16 @@ def push(X, k, offset, pool, seed=0):
     """`X` (float64 copy) with `k` vertices of `pool` (seeded choice) moved by `offset` in
     every frame, and the chosen vertices."""
     X = np.array(X, dtype=np.float64)
-    if len(pool) < k:
-        raise SystemExit(f"dirty_recording: only {len(pool)} vertices to push; asked for {k}")
-    picked = np.sort(np.random.default_rng(seed).choice(pool, k, replace=False))
+    picked = _choose(pool, k, seed, "vertices to push")
     X[:, picked] += offset
     return X, picked
+
+
+def _choose(pool, k, seed, what):
+    """`k` of the vertices `pool`, a seeded choice, sorted."""
+    if len(pool) < k:
+        raise SystemExit(f"dirty_recording: only {len(pool)} {what}; asked for {k}")
+    return np.sort(np.random.default_rng(seed).choice(pool, k, replace=False))
 
 
 def main(argv=None):
