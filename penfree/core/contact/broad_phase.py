@@ -226,14 +226,22 @@ def _boxes_py(V_t0, V_t1, T, inflation, lo, hi):
     # Each box writes its own rows: both builds give the same bits. Memory-bound,
     # ~1 ms at 200K primitives serially; below PARALLEL_MIN_WORK boxes the serial
     # build runs (a parallel launch would cost more on a loaded machine).
+    # A NaN or infinite coordinate makes its box NaN (min and max would pass a NaN
+    # by): `_box_corners` refuses it before any grid is sized.
     for i in prange(T.shape[0]):
         for a in range(3):
             mn = np.inf
             mx = -np.inf
+            bad = 0.0
             for c in range(T.shape[1]):
                 v = T[i, c]
-                mn = min(mn, V_t0[v, a], V_t1[v, a])
-                mx = max(mx, V_t0[v, a], V_t1[v, a])
+                p = V_t0[v, a]
+                q = V_t1[v, a]
+                mn = min(mn, p, q)
+                mx = max(mx, p, q)
+                bad += (p - p) + (q - q)
+            if bad != 0.0:
+                mn = mx = np.nan
             lo[i, a] = mn - inflation
             hi[i, a] = mx + inflation
 
@@ -940,27 +948,37 @@ def _start_owners(E, F, vertices, n):
 
 
 def _corners_py(lo, hi, corners):
-    # Chunk c of STAT_CHUNKS keeps its lower and upper corners in corners[c]
-    # (min and max are exact: any thread count gives the same bits).
+    # Chunk c of STAT_CHUNKS keeps its lower and upper corners in corners[c, :2]
+    # (min and max are exact: any thread count gives the same bits), and in
+    # corners[c, 2, 0] a sum that is NaN when a box has a NaN or infinite bound: min
+    # and max pass NaN by, and a cell index of NaN would address outside the grid.
     m = lo.shape[0]
     C = corners.shape[0]
     for c in prange(C):
         for a in range(3):
             corners[c, 0, a] = np.inf
             corners[c, 1, a] = -np.inf
+        bad = 0.0
         for i in range(c * m // C, (c + 1) * m // C):
             for a in range(3):
-                corners[c, 0, a] = min(corners[c, 0, a], lo[i, a])
-                corners[c, 1, a] = max(corners[c, 1, a], hi[i, a])
+                lo_a = lo[i, a]
+                hi_a = hi[i, a]
+                corners[c, 0, a] = min(corners[c, 0, a], lo_a)
+                corners[c, 1, a] = max(corners[c, 1, a], hi_a)
+                bad += (lo_a - lo_a) + (hi_a - hi_a)
+        corners[c, 2, 0] = bad
 
 
 _corners = parallel_kernel(_corners_py, "_bp_corners")
 
 
 def _box_corners(lo, hi):
-    """(2, 3): the boxes' lower and upper bounding corners."""
-    parts = np.empty((_STAT_CHUNKS, 2, 3))
+    """(2, 3): the boxes' lower and upper bounding corners; `InputError` when a box
+    has a NaN or infinite bound (every grid is sized from these corners)."""
+    parts = np.empty((_STAT_CHUNKS, 3, 3))
     _corners(lo.shape[0], lo, hi, parts)
+    if not np.all(parts[:, 2, 0] == 0.0):
+        raise InputError("broad phase: a primitive has a NaN or infinite coordinate (positions must be finite)")
     return np.stack([parts[:, 0].min(axis=0), parts[:, 1].max(axis=0)])
 
 

@@ -325,10 +325,14 @@ def ball_ratio(x, dx, centers, radii):
     Returns
     -------
     (N,) float64
-        1 where ``x + dx`` is inside the ball (or ``dx = 0``); NaN for a vertex at the
-        centre of a ball of radius 0 (a pair within the thickness, e.g. a crossing),
-        where ipctk 1.6.1's formula divides 0 by 0: its ``beta < 1`` test then lets the
-        vertex move unhindered, and so does `isotropic_filter`.
+        1 where ``x + dx`` is inside the ball (or ``dx = 0``); NaN where ipctk 1.6.1's
+        formula has no root: for a vertex at the centre of a ball of radius 0 (a pair
+        within the thickness, e.g. a crossing) it divides 0 by 0, and for a vertex
+        outside its ball (one such vertex after an unhindered move) whose line misses
+        the ball its discriminant is negative. Its ``beta < 1`` test then lets the
+        vertex move unhindered, and so does `isotropic_filter`. (Clamping the
+        discriminant at 0 instead gave such a vertex a negative or infinite ratio:
+        positions of NaN, on which the broad phase crashed.)
     """
     a = np.einsum("ij,ij->i", dx, dx)
     rel = x - centers
@@ -338,8 +342,8 @@ def ball_ratio(x, dx, centers, radii):
     beta = np.ones(x.shape[0])
     out = ~inside & (a > 0)
     a, b, c = a[out], b[out], c[out]
-    sq = np.sqrt(np.maximum(b * b - 4.0 * a * c, 0.0))
     with np.errstate(divide="ignore", invalid="ignore"):
+        sq = np.sqrt(b * b - 4.0 * a * c)  # NaN where negative, as ipctk's sqrt
         # numerically stable positive root, as in ipctk
         beta[out] = np.where(b >= 0, -2.0 * c / (b + sq), (-b + sq) / (2.0 * a))
     return beta
@@ -401,7 +405,8 @@ def planar_filter(x, dx, centers, inflation_radius, stencils, kinds, scaling=REL
         partial = np.ones((max(1, min(_PLANAR_CHUNKS, stencils.shape[0] // _STENCILS_PER_CHUNK)), x.shape[0]))
         _planar_ratios(stencils.shape[0], x, dx, stencils, kinds, float(scaling), partial)
         ratio = partial.min(axis=0)
-    ratio = np.minimum(ratio, ball_ratio(x, dx, centers, float(inflation_radius)))
+    # ipctk's std::min(t, beta) keeps t where beta is NaN (no root): np.fmin, not np.minimum
+    ratio = np.fmin(ratio, ball_ratio(x, dx, centers, float(inflation_radius)))
     trunc = ratio < 1.0
     out = dx.copy()
     out[trunc] *= ratio[trunc, None]

@@ -217,3 +217,36 @@ def test_ipctk_client_warm_start_is_ipctks(sample_sequence):
         assert passes == 1 + int(not np.array_equal(np.asarray(tr.trust_region_centers), x))
         n_second += passes == 2
     assert n_second > 0  # the conditional second pass is exercised
+
+
+@pytest.mark.parametrize("truncation", ["isotropic", "planar"])
+@pytest.mark.parametrize("client", CLIENTS)
+def test_a_crossing_start_replays_with_finite_positions(client, truncation):
+    """Two segments crossing at the start (radius 0 at their four vertices) among eight
+    free ones: the warm move lets the crossing vertices go (ipctk: 0 / 0, no truncation)
+    down by 0.01; the iteration's move along x is then perpendicular to their offset
+    from the centres, and ipctk's discriminant is negative (no truncation again). The
+    own client clamped it to 0 and divided by 0: -inf, positions of NaN, and a broad
+    phase that crashed the process on them. Both clients now count the same."""
+    x = np.array([[0.0, 0, 0], [1, 0, 0], [0.5, -0.5, 0], [0.5, 0.5, 0]]
+                 + [[3.0 * k, 5, 0] for k in range(8) for _ in range(2)])
+    x[4::2, 0] += 1.0
+    edges = np.arange(x.shape[0]).reshape(-1, 2)
+    x_pred = x + [0, 0, -0.01]
+    x_next = x_pred + [0.01, 0, 0]
+    r = replay_step(x, x, x_pred, x_next, edges=edges, dhat=0.05, truncation=truncation, radius="step",
+                    client=client)
+    assert r["converged"] and r["passes"] == 1, r
+
+
+def test_non_finite_positions_are_refused_by_the_broad_phase():
+    """A NaN or infinite coordinate reaches a grid's cell index as garbage (a crash):
+    every grid is sized from its boxes' corners, which now refuse them."""
+    from penfree.core.contact.proximity import per_vertex_separation
+
+    E = np.array([[0, 1], [2, 3]])
+    for bad in (np.nan, np.inf, -np.inf):
+        x = X.copy()
+        x[3, 1] = bad
+        with pytest.raises(InputError, match="NaN or infinite"):
+            per_vertex_separation(x, E, np.zeros((0, 3), np.int64), 1.0)

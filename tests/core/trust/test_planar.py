@@ -200,3 +200,62 @@ def test_a_segment_end_falling_onto_a_face_is_truncated_like_ipctk():
         c.update(x.copy())
         z[kind] = x[3, 2] + c.filter(x, dx)[0][3, 2]
     assert 0.0 < z["own"] < 0.01 and z["own"] == pytest.approx(z["ipctk"], abs=1e-12)
+
+
+def _outside_cases(rng, n):
+    """Vertices moved off their trust-region centres (as after an unhindered move of a
+    vertex whose radius is 0), some with radius 0, and displacements some of which are
+    exactly perpendicular to the offset (ipctk's b = 0: the line misses the ball)."""
+    V = rng.uniform(0, 1, (n, 3))
+    off = np.zeros((n, 3))
+    off[np.arange(n), rng.integers(0, 3, n)] = rng.choice([-1.0, 1.0], n) * rng.uniform(0.02, 0.2, n)
+    radii = np.where(rng.random(n) < 0.5, 0.0, rng.uniform(0.01, 0.1, n))
+    dx = rng.normal(0, 0.05, (n, 3))
+    perp = rng.random(n) < 0.4  # zero the offset's axis: dx . (x - c) == 0 exactly
+    dx[perp] *= (off[perp] == 0.0)
+    return V, V + off, dx, radii
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_vertex_outside_its_ball_is_filtered_like_ipctk(seed):
+    """ipctk's formula takes the square root of a negative discriminant (the line from
+    a vertex outside its ball misses the ball): NaN, and its ``beta < 1`` test leaves
+    the vertex unhindered; the planar fallback's ``std::min`` keeps the planar ratio.
+    Clamping the discriminant at 0 gave -inf ratios (NaN positions, on which the own
+    client's next pass crashed) and negative ones."""
+    from penfree.core.trust.planar import ball_ratio
+
+    rng = np.random.default_rng(seed)
+    n = 400
+    V, x, dx, radii = _outside_cases(rng, n)
+    E = np.arange(n).reshape(-1, 2)
+    mesh, tr, E_, F_ = _client(V, E, None, 0.05)
+    tr.trust_region_radii = radii
+    # near a zero discriminant the root is ill-conditioned and its rounding decides ipctk's answer: leave those out
+    rel = x - V
+    a, b = np.einsum("ij,ij->i", dx, dx), 2 * np.einsum("ij,ij->i", dx, rel)
+    c = np.einsum("ij,ij->i", rel, rel) - radii ** 2
+    clear = np.abs(b * b - 4 * a * c) > 1e-6 * (b * b + np.abs(4 * a * c))
+    ref = np.array(dx, order="F")
+    tr.filter_step(mesh, np.asfortranarray(x), ref)
+    out, n_trunc = isotropic_filter(x, dx, V, radii)
+    assert np.isfinite(out).all()
+    assert np.isnan(ball_ratio(x, dx, V, radii)[clear & (b == 0) & (c > 0)]).all()
+    np.testing.assert_allclose(out[clear], ref[clear], rtol=0, atol=1e-12)
+    assert (np.any(ref != dx, axis=1)[clear]).sum() > 0 and (np.all(ref == dx, axis=1) & clear & (b == 0)).sum() > 0
+    # planar: vertices farther than the inflation radius from their centres, with candidates
+    R = 0.05
+    st, kd = _ipctk_stencils(mesh, tr)
+    assert st.shape[0] > 0
+    ref = np.array(dx, order="F")
+    tr.planar_filter_step(mesh, np.asfortranarray(x), ref)
+    out, _ = planar_filter(x, dx, V, R, st, kd)
+    assert np.isfinite(out).all()
+    rel2 = np.einsum("ij,ij->i", rel, rel) - R * R
+    clear = np.abs(b * b - 4 * a * rel2) > 1e-6 * (b * b + np.abs(4 * a * rel2))
+    assert (clear & (b == 0) & (rel2 > 0)).sum() > 0  # lines that miss the inflation ball are among them
+    # a planar ratio near ipctk's cut (t < 1e-10 is no crossing), from a pair of random segments nearly
+    # touching, follows the plane's last bits: leave those out
+    for got in (out, ref):
+        clear &= ~(np.linalg.norm(got, axis=1) < 1e-6 * np.linalg.norm(dx, axis=1))
+    np.testing.assert_allclose(out[clear], ref[clear], rtol=0, atol=1e-9 * np.abs(ref).max())  # as the planar test
