@@ -227,23 +227,24 @@ def _boxes_py(V_t0, V_t1, T, inflation, lo, hi):
     # ~1 ms at 200K primitives serially; below PARALLEL_MIN_WORK boxes the serial
     # build runs (a parallel launch would cost more on a loaded machine).
     # A NaN or infinite coordinate makes its box NaN (min and max would pass a NaN
-    # by): `_box_corners` refuses it before any grid is sized.
+    # by; the sum of the coordinates does not, nor does it overflow below ~1e307):
+    # `_box_corners` refuses it before any grid is sized.
     for i in prange(T.shape[0]):
+        acc = 0.0
         for a in range(3):
             mn = np.inf
             mx = -np.inf
-            bad = 0.0
             for c in range(T.shape[1]):
                 v = T[i, c]
                 p = V_t0[v, a]
                 q = V_t1[v, a]
                 mn = min(mn, p, q)
                 mx = max(mx, p, q)
-                bad += (p - p) + (q - q)
-            if bad != 0.0:
-                mn = mx = np.nan
+                acc += p + q
             lo[i, a] = mn - inflation
             hi[i, a] = mx + inflation
+        if not (acc - acc == 0.0):
+            lo[i, 0] = np.nan
 
 
 _boxes = parallel_kernel(_boxes_py, "_bp_boxes")
