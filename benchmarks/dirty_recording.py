@@ -1,4 +1,4 @@
-"""A dirty copy of a recording: vertices inside a collider, sunk into the thickness, or through the scene.
+"""A dirty copy of a recording: vertices inside a collider, sunk into the thickness, through the scene, or a ground added.
 
 Real OGC-family recordings are not as clean as the bundled samples: a few vertices end
 up inside a collider or through another part of the scene (pre-existing crossings), and
@@ -20,6 +20,11 @@ judge `deform` and `auto` on (`eval_client.py`, `eval_contact.py`):
   scene, pre-existing self-intersections (a stack of cloth layers with a few vertices
   of one layer pushed through the next).
 
+* ``--ground Z``: records a ground the simulation had but the file lacks, the half-space
+  ``z > Z`` as ``obstacles/ground`` (the falling stack lands on a 50 m sphere whose top
+  is at z = 0; the copy with ``--ground 0`` holds its resting layer 0-1 mm inside that
+  plane, as a recording of a solver without a collision offset would).
+
 Nearest faces are found by brute force over the obstacle's faces (for small colliders:
 the samples' box has 12). The input is never modified; the output is created exclusively
 unless ``--overwrite``.
@@ -27,6 +32,7 @@ unless ``--overwrite``.
     python benchmarks/dirty_recording.py samples/cloth_drape_box.h5 -o dirty.h5 --dent 16
     python benchmarks/dirty_recording.py samples/cloth_drape_box.h5 -o sunk.h5 --sink 0.45
     python benchmarks/dirty_recording.py samples/falling_stack.h5 -o crossed.h5 --push 12 --offset 0,0,0.06 --component 0
+    python benchmarks/dirty_recording.py samples/falling_stack.h5 -o grounded.h5 --ground 0
 """
 
 from __future__ import annotations
@@ -126,6 +132,7 @@ def main(argv=None):
     ap.add_argument("--push", type=int, default=0, help="vertices displaced by --offset in every frame")
     ap.add_argument("--offset", default="0,0,0", help="X,Y,Z displacement of the pushed vertices")
     ap.add_argument("--component", type=int, default=None, help="push vertices of this component only")
+    ap.add_argument("--ground", type=float, default=None, help="add the half-space z > GROUND as obstacles/ground")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--overwrite", action="store_true")
     a = ap.parse_args(argv)
@@ -141,6 +148,7 @@ def main(argv=None):
         h = float(f.attrs.get("thickness", 0.0))
         r = float(f.attrs.get("contact_radius", h))
         comp = f["components"][...] if "components" in f else None
+        has_ground = "obstacles/ground" in f
     Xd, msg = X, []
     if a.push:
         offset = np.array([float(v) for v in a.offset.split(",")])
@@ -162,12 +170,23 @@ def main(argv=None):
         msg.append(f"dented {len(picked)} vertices {picked.tolist()} to {depth:g} inside")
         if a.sink is not None:
             msg.append(f"near vertices sunk to {a.sink:g} of their distance")
+    if a.ground is not None:
+        if has_ground:
+            raise SystemExit(f"dirty_recording: {a.input} already has obstacles/ground")
+        if not np.isfinite(a.ground):
+            raise SystemExit(f"dirty_recording: --ground must be finite; got {a.ground}")
+        below = int(np.count_nonzero((Xd[..., 2] < a.ground).any(axis=0)))
+        msg.append(f"ground z > {a.ground:g} added ({below} vertices below it in some frame)")
     if not msg:
-        raise SystemExit("dirty_recording: nothing to do (give --dent, --sink or --push)")
+        raise SystemExit("dirty_recording: nothing to do (give --dent, --sink, --push or --ground)")
     tmp = a.output + ".tmp"
     shutil.copyfile(a.input, tmp)
     with h5py.File(tmp, "r+") as f:
         f["positions"][...] = Xd.astype(X.dtype)
+        if a.ground is not None:
+            g = f.create_group("obstacles/ground")
+            g["normal"] = np.array([0.0, 0.0, 1.0])
+            g["offset"] = float(a.ground)
         cmd = "python benchmarks/dirty_recording.py " + " ".join(sys.argv[1:] if argv is None else argv)
         f.attrs["source"] = f"{f.attrs.get('source', '')}\ndirty copy: {cmd}".strip()
     os.replace(tmp, a.output)
