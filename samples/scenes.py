@@ -440,10 +440,13 @@ def falling_stack(vertices=768, frames=40, seed=0):
 
     3 square layers (0.4 m, about ``vertices / 3`` vertices each) lie flat 1.5 edge
     lengths (3 contact radii) apart, with a small seeded ripple, and start falling
-    at 1.5 m/s from 0.2 m above the ground (a sphere of radius 50 m, friction 0.6).
-    They fall as one (the same free fall for every vertex: coherent motion) and
-    land about half-way through the recording, when the layers pile up on each
-    other (self-contact, contact radius half an edge, OGC-truncated XPBD).
+    at 1.5 m/s from 0.2 m above the ground z = 0. They fall as one (the same free
+    fall for every vertex: coherent motion) and land about half-way through the
+    recording, when the layers pile up on each other (self-contact, contact radius
+    half an edge, OGC-truncated XPBD). The ground (a 2 m square) is simulated as two
+    pinned triangles inside the OGC contact, so the cloth keeps the thickness from it,
+    and the file stores it as the half-space ``ground`` (normal (0, 0, 1), offset 0),
+    as `cloth_drape_box` does.
     """
     rng = np.random.default_rng(seed)
     layers = 3
@@ -452,16 +455,21 @@ def falling_stack(vertices=768, frames=40, seed=0):
     h = size / (n - 1)
     x, faces, cons, comp = _layer_stack(n, layers, size, 1.5 * h, 0.2)
     x[:, 2] += 0.002 * np.sin(9 * x[:, 0] + rng.uniform(0, 6.3)) * np.sin(7 * x[:, 1] + rng.uniform(0, 6.3))
-    mass = np.full(len(x), 0.05 / (n * n))
-    sim = Solver(x, mass, cons, drag=0.1)
-    sim.v[:, 2] = -1.5
-    big = 50.0
-    sim.sphere(np.array([0.0, 0.0, -big]), big, friction=0.6)
+    nc = len(x)
+    ground_v = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
+    ground_f = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64) + nc
+    xa = np.concatenate([x, ground_v])
+    mass = np.full(len(xa), 0.05 / (n * n))
+    sim = Solver(xa, mass, cons, drag=0.1)
+    sim.v[:nc, 2] = -1.5
+    fixed = np.arange(nc, len(xa))
+    sim.pin(fixed, lambda t: xa[fixed])
     thickness = 0.25 * h
-    sim.self_contact(radius=0.5 * h, thickness=thickness, faces=faces, friction=0.3)
+    sim.self_contact(radius=0.5 * h, thickness=thickness, faces=np.concatenate([faces, ground_f]), friction=0.3)
     dt = 1.0 / 120.0
-    X = sim.run(frames, dt, substeps=8, iters=12)
-    return X, {"faces": faces, "components": comp}, {
+    X = sim.run(frames, dt, substeps=8, iters=12)[:, :nc]
+    obstacles = {"ground": {"normal": np.array([0.0, 0.0, 1.0]), "offset": 0.0}}
+    return X, {"faces": faces, "components": comp, "obstacles": obstacles}, {
         "dt": dt, "thickness": thickness, "contact_radius": 0.5 * h,
         "description": f"falling-stack: {layers} cloth layers {n}x{n}, 3 contact radii apart, falling "
                        f"at 1.5 m/s and landing on the ground, self-contact (OGC-truncated XPBD), "

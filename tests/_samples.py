@@ -19,11 +19,12 @@ def load_module(name):
 
 
 def load_sample(name) -> dict:
-    """Every dataset of `samples/<name>.h5`, plus ``attrs``, ``chunks`` (of positions), ``name``, ``bytes``."""
+    """Every top-level dataset of `samples/<name>.h5` (not the ``obstacles`` group), plus
+    ``attrs``, ``chunks`` (of positions), ``name``, ``bytes``."""
     path = SAMPLES / f"{name}.h5"
     assert path.exists(), f"missing committed sample {path}"
     with h5py.File(path, "r") as f:
-        data = {k: f[k][()] for k in f}
+        data = {k: f[k][()] for k in f if isinstance(f[k], h5py.Dataset)}
         data["attrs"] = dict(f.attrs)
         data["chunks"] = f["positions"].chunks
     data["name"] = name

@@ -116,7 +116,7 @@ def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thic
     weights = seq.weights if weights is None else weights
     S_idx = step_indices(seq.n_frames, frames)
     m = required_margin(thickness, margin)
-    strategy = make_strategy(model, seq, projection, thickness, S_idx.size, client_model)
+    strategy = make_strategy(model, seq, projection, thickness, S_idx.size, client_model, contact_radius)
     out = _allocate(seq, S_idx, per_vertex)
     if check_start:
         out["start_intersections"] = start_state_intersections(seq, S_idx)

@@ -138,6 +138,67 @@ def test_auto_moves_a_sheet_with_a_few_vertices_inside_a_collider():
                            pre_existing=True).ok
 
 
+def _falling_sheet(ground):
+    """A 10 x 10 sheet falling 0.03 a step toward the ground z = 0 from 0.095 (contact
+    radius 0.02, thickness 0.005), the ground recorded as a half-space or not."""
+    from penfree.sequence import Obstacle
+
+    V, F = grid(10)
+    x0 = V * (0.5 / 9) + [-0.25, -0.25, 0.095]
+    frames = np.stack([x0 - [0.0, 0.0, 0.03 * s] for s in range(4)])
+    obstacles = [Obstacle(name="ground", normal=np.array([0.0, 0.0, 1.0]), offset=0.0)] if ground else []
+    return Sequence(positions=frames, faces=F, thickness=0.005, contact_radius=0.02, obstacles=obstacles).validate()
+
+
+@pytest.mark.parametrize("client", [False, True], ids=["static", "client-model"])
+def test_auto_stops_a_landing_at_the_contact_radius_of_a_recorded_ground(client):
+    """Step 2 predicts the sheet at z = 0.005 (the thickness: the gate allows it); a
+    solver holds it at the contact radius 0.02. `auto` fit and predicted toward the
+    prediction and took the sheet down to 0.005, from where the real client must climb
+    back with tiny trust regions (the falling stack: +18-20% ipctk passes). The
+    prediction is now clipped at the contact radius above a recorded half-space: the
+    map ends there. Step 1 (prediction at 0.035, clear of the ground) moves to the
+    prediction exactly, as without a ground."""
+    from penfree.core.pipeline.client_select import ClientModel
+
+    seq = _falling_sheet(ground=True)
+    cm = ClientModel(truncation="isotropic", dhat=0.02, faces=seq.faces, obstacles=tuple(seq.obstacles)) \
+        if client else None
+    out = deform_sequence(seq, model="auto", client_model=cm).steps
+    free = deform_sequence(_falling_sheet(ground=False), model="auto", client_model=None).steps
+    k1, k2 = list(out["frame"]).index(1), list(out["frame"]).index(2)
+    x1 = seq.positions[1]
+    if not client:
+        np.testing.assert_array_equal(out["deformed"][k1], free["deformed"][k1])
+    np.testing.assert_allclose(out["deformed"][k1], 2 * x1 - seq.positions[0], rtol=0, atol=1e-12)
+    z = out["deformed"][k2][:, 2]
+    assert out["model"][k2] != "none"
+    assert z.min() >= 0.02 - 1e-9 and z.max() <= seq.positions[2][:, 2].max() - 0.01  # moved, not below 0.02
+    assert free["deformed"][k2][:, 2].min() < 0.01  # the unclipped prediction: down to the thickness
+
+
+def test_landing_prediction_keeps_the_bits_of_rows_it_does_not_clip():
+    from penfree.core.pipeline.strategy import landing_prediction
+    from penfree.sequence import Obstacle
+
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0.0, 1.0, (200, 3)).astype(np.float32)
+    x_prev = (x + rng.normal(0, 0.05, x.shape)).astype(np.float32)
+    ground = Obstacle(name="ground", normal=np.array([0.0, 0.0, 2.0]), offset=0.1)
+    x64 = x.astype(np.float64)
+    got = landing_prediction(x_prev, x64, [ground], 0.05)
+    y = 2 * x64 - x_prev.astype(np.float64)
+    clip = y[:, 2] - 0.1 < np.minimum(0.05, x64[:, 2] - 0.1)
+    assert 0 < clip.sum() < len(x) and got.dtype == np.float32
+    np.testing.assert_array_equal(got[~clip], x_prev[~clip])
+    target = 2 * x64[clip] - got[clip].astype(np.float64)
+    np.testing.assert_allclose(target[:, 2], 0.1 + np.minimum(0.05, x64[clip, 2] - 0.1), atol=1e-6)
+    np.testing.assert_allclose(target[:, :2], y[clip, :2], atol=1e-6)
+    assert landing_prediction(x_prev, x64, [], 0.05) is x_prev
+    far = Obstacle(name="ground", normal=np.array([0.0, 0.0, 1.0]), offset=-10.0)
+    assert landing_prediction(x_prev, x64, [far], 0.05) is x_prev
+
+
 def _orient(P, v, f):
     """Exact sign-carrying volume of vertex v over face f (rationals)."""
     from fractions import Fraction
