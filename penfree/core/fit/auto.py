@@ -373,11 +373,13 @@ def select_step(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA
 
 
 def ranked_candidates(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT_GAMMA, weights=None,
-                      margin=0.0, projection="auto", repeat=False):
+                      margin=0.0, projection="auto", repeat=False, predict_from=None):
     """Validated ``x, x_prev``, the moments and every certified candidate with its prediction.
 
     Parameters as in `select_step` (`repeat`: add the ``rigid-repeat`` candidate of
-    `candidate_maps`). Order the candidates with `rank`; build the applied one with
+    `candidate_maps`). The candidates are fit toward ``2 x - x_prev``; their passes are
+    predicted toward ``2 x - predict_from`` (default `x_prev`; `strategy.landing_prediction`
+    gives another). Order the candidates with `rank`; build the applied one with
     `candidate_result`.
     """
     # NaN/Inf positions are caught by fit_moments from its sums (no extra pass here).
@@ -390,6 +392,7 @@ def ranked_candidates(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT
     r_q, thickness, gamma = float(r_q), float(thickness), float(gamma)
     m = _fit.fit_moments(x_prev, x, w, validate=False)
     cands = candidate_maps(m, margin, projection, repeat)
+    target_prev = x_prev if predict_from is None else _fit.as_positions(predict_from, "predict_from", x.shape[0])
     r_buf = np.empty(x.shape[0])
     seen = {}
     for cand in cands:
@@ -397,7 +400,7 @@ def ranked_candidates(x_prev, x, d_start, *, r_q, thickness=0.0, gamma=K.DEFAULT
         # inside the clamp): the same A, u and sigma give the same prediction.
         key = (cand.A.tobytes(), cand.u.tobytes(), cand.sigma_lb)
         if key not in seen:
-            seen[key] = _predict(x_prev, x, cand.D, cand.u, m.c, d_start, float(cand.sigma_lb), r_q, thickness,
+            seen[key] = _predict(target_prev, x, cand.D, cand.u, m.c, d_start, float(cand.sigma_lb), r_q, thickness,
                                  gamma, r_buf)
         cand.predicted = dict(seen[key])
     return x, x_prev, m, cands

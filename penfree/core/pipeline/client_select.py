@@ -165,11 +165,14 @@ def _replay_order(cands, shortlist):
     return order + [i for i in range(1, len(cands)) if cands[i].name in ALWAYS_REPLAYED]
 
 
-def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.inf, frame=None) -> int:
+def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.inf, frame=None,
+                     landing=None) -> int:
     """Index of the candidate with the fewest predicted client passes (module doc).
 
     `frame`: the step's frame, where the model's obstacles are taken (needed with
-    mesh obstacles).
+    mesh obstacles). `landing`: `strategy.landing_prediction`'s previous frame; the
+    vertices it clips are targeted where it stops them (the warm start still aims at
+    ``2 x - x_prev``, as the simulator's does).
 
     Fills ``predicted["client_passes"]`` (toward ``y_hat``) and
     ``predicted["client_passes_half"]`` (toward the half-way point) of the replayed
@@ -179,6 +182,10 @@ def choose_by_client(cands, x_prev, x, c, d_start, model, thickness=0.0, r_q=np.
     x_pred = 2.0 * x64 - np.asarray(x_prev, dtype=np.float64)
     rot = next((cd for cd in cands if cd.name in ALWAYS_REPLAYED), None)
     y = x_pred if rot is None else corotated_target(x_prev, x64, rot.A, rot.u, c)
+    if landing is not None and landing is not x_prev:
+        clipped = np.any(np.asarray(landing) != np.asarray(x_prev), axis=1)
+        y = np.array(y, dtype=np.float64)
+        y[clipped] = 2.0 * x64[clipped] - np.asarray(landing, dtype=np.float64)[clipped]
     y_hat = held_target(x64, y, d_start, model.dhat, r_q, x_prev=x_prev)
     # The solver rarely lands on the prediction: the half-way point breaks ties, and
     # decides alone where the prediction deadlocks (see `_better`).

@@ -159,8 +159,9 @@ class Auto:
         if self.d_start is None:  # our own query (obstacles only lower it): the gate may trust it
             step.gate.use_separations(d_start)
         t0 = time.perf_counter()
-        x_prev_in = landing_prediction(step.x_prev, step.x64, self.obstacles, self.rest)
-        x, x_prev, m, cands = ranked_candidates(x_prev_in, step.x, d_start, r_q=step.r_q,
+        x_prev_target = landing_prediction(step.x_prev, step.x64, self.obstacles, self.rest)
+        landing = None if x_prev_target is step.x_prev else x_prev_target
+        x, x_prev, m, cands = ranked_candidates(step.x_prev, step.x, d_start, r_q=step.r_q, predict_from=landing,
                                                 thickness=self.thickness, weights=step.weights,
                                                 margin=step.margin, projection=self.projection,
                                                 repeat=self.client_model is not None and self.client_model.repeat)
@@ -169,7 +170,7 @@ class Auto:
             from .client_select import choose_by_client
 
             best = choose_by_client(cands, x_prev, x, m.c, d_start, self.client_model, self.thickness, step.r_q,
-                                    frame=step.s)
+                                    frame=step.s, landing=landing)
             order = [best] + [k for k in order if k != best]
         for k in order:
             o = from_step_result(candidate_result(x_prev, x, m, cands[k], t0))
@@ -246,19 +247,19 @@ def make_strategy(model, seq, projection, thickness, n_steps, client_model=None,
 
 
 def landing_prediction(x_prev, x64, obstacles, rest):
-    """The previous frame `auto` fits and predicts from: `x_prev`, except where the
-    constant-velocity prediction ``2 x - x_prev`` lands on a half-space obstacle.
+    """The previous frame `auto` predicts passes from (its candidates are still fit toward
+    ``2 x - x_prev``): `x_prev`, except where that prediction lands on a half-space.
 
     A vertex whose prediction would come closer to a half-space than `rest` (the contact
     radius: where the solver holds what lands on it) and than it is now is predicted to
     stop at that distance: its target is moved back along the normal, and its row of
-    the returned previous frame is ``2 x - target``. Other rows are `x_prev`'s own (the
-    same bits: a recording that lands on nothing, or a step far from its ground, is fit
-    exactly as before). Without the clip, `auto` at a landing moved the stack on toward
-    the ground (down to the thickness, which the gate allows), where the solver stops
-    it at the contact radius: ipctk needed 18-20% more isotropic passes than doing
-    nothing on the falling stack; the clip makes it 4% fewer (BENCHMARKS.md, issue 12).
-    Mesh obstacles are not clipped.
+    the returned previous frame is ``2 x - target``. Other rows are `x_prev`'s own, and
+    without a clip `x_prev` itself is returned (a recording that lands on nothing is
+    chosen for exactly as before). Without the clip, `auto` at a landing chose maps that
+    take the stack on toward the ground (down to the thickness, which the gate allows),
+    where the solver stops it at the contact radius: ipctk needed 18-20% more isotropic
+    passes than doing nothing on the falling stack; with it, 4% fewer (BENCHMARKS.md,
+    issue 12). Mesh obstacles are not clipped.
     """
     half = [ob for ob in obstacles if ob.is_half_space]
     if not half or not rest > 0.0:
