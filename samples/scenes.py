@@ -372,6 +372,18 @@ def box_mesh(lo, hi):
     return V, F
 
 
+def ground_square(half):
+    """The ground z = 0 as a solver sees it, a square of side 2 `half` (4 vertices, 2
+    triangles facing up; pinned inside the OGC contact, so the cloth keeps the thickness
+    from it), and as a file records it (`GROUND`, the half-space z > 0)."""
+    V = np.array([[-half, -half, 0.0], [half, -half, 0.0], [half, half, 0.0], [-half, half, 0.0]])
+    return V, np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
+
+
+#: The recorded form of `ground_square`: obstacles/ground, normal (0, 0, 1), offset 0.
+GROUND = {"normal": np.array([0.0, 0.0, 1.0]), "offset": 0.0}
+
+
 def cloth_drape_box(vertices=900, frames=60, seed=0):
     """A square sheet dropped onto a box, draping over its edges onto the ground.
 
@@ -395,8 +407,7 @@ def cloth_drape_box(vertices=900, frames=60, seed=0):
     cloth = np.column_stack([np.cos(turn) * u - np.sin(turn) * w + 0.05,
                              np.sin(turn) * u + np.cos(turn) * w + 0.03, 0.5 + ripple])
     box_v, box_f = box_mesh([-0.25, -0.25, 0.0], [0.25, 0.25, 0.35])
-    ground_v = np.array([[-2.0, -2.0, 0.0], [2.0, -2.0, 0.0], [2.0, 2.0, 0.0], [-2.0, 2.0, 0.0]])
-    ground_f = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
+    ground_v, ground_f = ground_square(2.0)
     nc = n * n
     x = np.concatenate([cloth, box_v, ground_v])
     faces = grid_faces(n, n)
@@ -413,7 +424,7 @@ def cloth_drape_box(vertices=900, frames=60, seed=0):
     sim.settle(t_pre, dt, substeps=8, iters=12)
     X = sim.run(frames, dt, substeps=8, iters=12, t0=t_pre)[:, :nc]
     obstacles = {"box": {"vertices": box_v, "faces": box_f},
-                 "ground": {"normal": np.array([0.0, 0.0, 1.0]), "offset": 0.0}}
+                 "ground": GROUND}
     return X, {"faces": faces, "obstacles": obstacles}, {
         "dt": dt, "thickness": thickness, "contact_radius": radius,
         "description": f"cloth-drape-box: {n}x{n} sheet dropped onto a box on the ground, draping "
@@ -456,8 +467,7 @@ def falling_stack(vertices=768, frames=40, seed=0):
     x, faces, cons, comp = _layer_stack(n, layers, size, 1.5 * h, 0.2)
     x[:, 2] += 0.002 * np.sin(9 * x[:, 0] + rng.uniform(0, 6.3)) * np.sin(7 * x[:, 1] + rng.uniform(0, 6.3))
     nc = len(x)
-    ground_v = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
-    ground_f = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64) + nc
+    ground_v, ground_f = ground_square(1.0)
     xa = np.concatenate([x, ground_v])
     mass = np.full(len(xa), 0.05 / (n * n))
     sim = Solver(xa, mass, cons, drag=0.1)
@@ -465,11 +475,10 @@ def falling_stack(vertices=768, frames=40, seed=0):
     fixed = np.arange(nc, len(xa))
     sim.pin(fixed, lambda t: xa[fixed])
     thickness = 0.25 * h
-    sim.self_contact(radius=0.5 * h, thickness=thickness, faces=np.concatenate([faces, ground_f]), friction=0.3)
+    sim.self_contact(radius=0.5 * h, thickness=thickness, faces=np.concatenate([faces, ground_f + nc]), friction=0.3)
     dt = 1.0 / 120.0
     X = sim.run(frames, dt, substeps=8, iters=12)[:, :nc]
-    obstacles = {"ground": {"normal": np.array([0.0, 0.0, 1.0]), "offset": 0.0}}
-    return X, {"faces": faces, "components": comp, "obstacles": obstacles}, {
+    return X, {"faces": faces, "components": comp, "obstacles": {"ground": GROUND}}, {
         "dt": dt, "thickness": thickness, "contact_radius": 0.5 * h,
         "description": f"falling-stack: {layers} cloth layers {n}x{n}, 3 contact radii apart, falling "
                        f"at 1.5 m/s and landing on the ground, self-contact (OGC-truncated XPBD), "
