@@ -42,6 +42,12 @@ from .planar import (
 from ..contact.proximity import SeparationQuery
 from .bounds import scene_arrays
 from .client_scene import ClientScene
+from .stencil_list import StencilList, contains, region
+
+#: A `ClientQuery` builds a `StencilList` over a declared region at this many fresh
+#: (not memoised) stencil queries within it at one radius: a replay that ends after its
+#: first passes does not pay for a list.
+STENCIL_LIST_AFTER = 2
 
 TRUNCATIONS = ("isotropic", "planar")
 RADIUS_RULES = ("own", "step")
@@ -166,7 +172,7 @@ class ClientQuery:
 
     Notes
     -----
-    Two savings, neither of which changes a result:
+    Three savings, none of which changes a result:
 
     - one `SeparationQuery` for all replays: its cell shapes and reach carry over
       from pass to pass, and its separations are the same bits as a fresh query's;
@@ -175,7 +181,9 @@ class ClientQuery:
       its start state, and the replays of a step start from few states:
       doing nothing and each candidate's ``x_def``, each replayed toward two targets by
       `client_select.choose_by_client`, and with both truncations by `client_counts`.
-      A state matches only bit for bit, at the same radius.
+      A state matches only bit for bit, at the same radius;
+    - the stencils of a replay's later passes from one `stencil_list.StencilList` over
+      the states it moves between (`expect`): the same arrays as a fresh query's.
 
     Examples
     --------
@@ -183,7 +191,7 @@ class ClientQuery:
     >>> q = ClientQuery(x, [[0, 1], [2, 3]], None)
     >>> d = q.separations(x, 5.0, start=True)
     >>> d.round(3).tolist(), q.separations(x, 5.0) is d, q.info
-    ([0.51, 0.51, 0.51, 0.51], True, {'queries': 1, 'memo_hits': 1})
+    ([0.51, 0.51, 0.51, 0.51], True, {'queries': 1, 'memo_hits': 1, 'lists': 0, 'listed': 0})
     """
 
     def __init__(self, V, edges, faces, obstacles=()):
@@ -198,7 +206,8 @@ class ClientQuery:
             self.scene = None
             self.query = SeparationQuery(self.E, self.F)  # each pass at the reach of the last
         self._memo = []  # [x's bits, {radius: separations}, {radius: (stencils, kinds)}], newest last
-        self.info = {"queries": 0, "memo_hits": 0}
+        self._region, self._lists, self._misses = None, {}, {}  # `expect`
+        self.info = {"queries": 0, "memo_hits": 0, "lists": 0, "listed": 0}
 
     def _entry(self, x, start):
         bits = x.view(np.uint64)
@@ -231,16 +240,41 @@ class ClientQuery:
         d[:self.n] = self.query(np.ascontiguousarray(x[:self.n]), R)
         return np.minimum(d, self.scene.cross_separations(x, R))
 
+    def expect(self, states):
+        """Declare the states the next passes move between (a replay's start and targets,
+        as the client's arrays): their passes' stencils then come from one
+        `stencil_list.StencilList` over that region, built at the region's
+        `STENCIL_LIST_AFTER`-th fresh query at a radius. A region inside the last one
+        keeps its lists (a replay toward the half-way point after the one toward the
+        target)."""
+        reg = region(states)
+        if self._region is None or not contains(self._region, reg):
+            self._region, self._lists, self._misses = reg, {}, {}
+
     def stencils(self, x, radius, start=False):
-        """`planar.candidate_stencils` of `x` within `radius` (`start` as in `separations`)."""
+        """`planar.candidate_stencils` of `x` within `radius` (`start` as in `separations`),
+        the same arrays whether a fresh query or a `StencilList` answers."""
         e = self._entry(x, start)
         if radius not in e[2]:
-            st, kinds = candidate_stencils(x, self.E, self.F, radius)
-            if self.scene is not None:
-                keep = self.scene.scene_pairs(st)
-                st, kinds = np.ascontiguousarray(st[keep]), np.ascontiguousarray(kinds[keep])
-            e[2][radius] = st, kinds
+            e[2][radius] = self._stencils(x, radius, start)
         return e[2][radius]
+
+    def _stencils(self, x, radius, start):
+        lst = self._lists.get(radius)
+        if lst is None and not start and self._region is not None:
+            self._misses[radius] = self._misses.get(radius, 0) + 1
+            if self._misses[radius] >= STENCIL_LIST_AFTER and contains(self._region, (x, x)):
+                keep = None if self.scene is None else self.scene.scene_pairs
+                lst = self._lists[radius] = StencilList(*self._region, self.E, self.F, radius, keep)
+                self.info["lists"] += 1
+        if lst is not None and lst.covers(x):
+            self.info["listed"] += 1
+            return lst.stencils_at(x)
+        st, kinds = candidate_stencils(x, self.E, self.F, radius)
+        if self.scene is not None:
+            keep = self.scene.scene_pairs(st)
+            st, kinds = np.ascontiguousarray(st[keep]), np.ascontiguousarray(kinds[keep])
+        return st, kinds
 
 
 class OwnClient:
@@ -400,6 +434,8 @@ def replay_step(x_s, x, x_pred, x_next, *, edges=None, faces=None, dhat, thickne
         reach = max(inflation_radius(x, x_pred, dhat), inflation_radius(x_s, x_pred, dhat)) + float(thickness)
         x_s, x, x_pred, x_next = scene.states(frame, [x_s, x, x_pred, x_next], reach, ref=1)
     cl = make_client(client, x, E, F, dhat, thickness, truncation, query, n_dynamic=n)
+    if client == "own" and truncation == "planar":  # every pass lies between these (`stencil_list`)
+        cl.q.expect((x_s, x_pred, x_next))
     if radius == "own":
         xc, passes = cl.warm_start(x_s, x_pred)
     else:

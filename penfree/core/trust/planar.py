@@ -256,24 +256,28 @@ def stencil_coefficients(P, kind, coef):
         _pt_coefficients(P, coef)
 
 
-def _planar_ratios_py(x, dx, stencils, kinds, scaling, partial):
+def _planar_ratios_py(x, dx, moving, stencils, kinds, scaling, partial):
     # Chunk k of the stencils lowers only partial[k] (min is exact: the reduced ratios
     # do not depend on the chunks or the threads).
     n_chunks = partial.shape[0]
     m = stencils.shape[0]
     for k in prange(n_chunks):
-        _planar_ratios_range(x, dx, stencils, kinds, scaling, partial[k], k * m // n_chunks, (k + 1) * m // n_chunks)
+        _planar_ratios_range(x, dx, moving, stencils, kinds, scaling, partial[k], k * m // n_chunks,
+                             (k + 1) * m // n_chunks)
 
 
 _planar_ratios = parallel_kernel(_planar_ratios_py, "_planar_ratios")
 
 
 @njit(cache=True)
-def _planar_ratios_range(x, dx, stencils, kinds, scaling, ratio, c0, c1):
+def _planar_ratios_range(x, dx, moving, stencils, kinds, scaling, ratio, c0, c1):
     P = np.empty((4, 3))
     D = np.empty((4, 3))
     coef = np.zeros(4)
     for c in range(c0, c1):
+        if not (moving[stencils[c, 0]] or moving[stencils[c, 1]] or moving[stencils[c, 2]]
+                or moving[stencils[c, 3]]):
+            continue  # every |D_j . n| below PLANAR_PARALLEL_EPS: no vertex of it is truncated
         for j in range(4):
             v = stencils[c, j]
             for k in range(3):
@@ -312,6 +316,14 @@ def _planar_ratios_range(x, dx, stencils, kinds, scaling, ratio, c0, c1):
             v = stencils[c, j]
             if r < ratio[v]:
                 ratio[v] = r
+
+
+def _moving(dx):
+    """(N,) bool: the vertices whose move can cross a division plane. A stencil of none
+    is skipped by `_planar_ratios_range` without a change: with every component below
+    a quarter of `PLANAR_PARALLEL_EPS`, ``|D_j . n|`` for a unit ``n`` (to rounding)
+    stays below the threshold, so the kernel would skip each of its vertices."""
+    return np.abs(dx).max(axis=1, initial=0.0) >= 0.25 * PLANAR_PARALLEL_EPS
 
 
 def ball_ratio(x, dx, centers, radii):
@@ -403,7 +415,7 @@ def planar_filter(x, dx, centers, inflation_radius, stencils, kinds, scaling=REL
     ratio = np.ones(x.shape[0])
     if stencils.shape[0]:
         partial = np.ones((max(1, min(_PLANAR_CHUNKS, stencils.shape[0] // _STENCILS_PER_CHUNK)), x.shape[0]))
-        _planar_ratios(stencils.shape[0], x, dx, stencils, kinds, float(scaling), partial)
+        _planar_ratios(stencils.shape[0], x, dx, _moving(dx), stencils, kinds, float(scaling), partial)
         ratio = partial.min(axis=0)
     # ipctk's std::min(t, beta) keeps t where beta is NaN (no root): np.fmin, not np.minimum
     ratio = np.fmin(ratio, ball_ratio(x, dx, centers, float(inflation_radius)))

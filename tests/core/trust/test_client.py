@@ -153,12 +153,12 @@ def test_client_query_memo_matches_bits():
     _, E_, F_ = scene_arrays(x, E, None)
     d = q.separations(x, 0.3, start=True)
     np.testing.assert_array_equal(d, per_vertex_separation(x, E_, F_, 0.3))
-    assert q.separations(x.copy(), 0.3) is d and q.info == {"queries": 1, "memo_hits": 1}
+    assert q.separations(x.copy(), 0.3) is d and q.info == {"queries": 1, "memo_hits": 1, "lists": 0, "listed": 0}
     y = x.copy()
     y[7, 1] = np.nextafter(y[7, 1], 2.0)  # one ulp away: another state
     np.testing.assert_array_equal(q.separations(y, 0.3), per_vertex_separation(y, E_, F_, 0.3))
     np.testing.assert_array_equal(q.separations(x, 0.5), per_vertex_separation(x, E_, F_, 0.5))
-    assert q.info == {"queries": 3, "memo_hits": 1}
+    assert q.info == {"queries": 3, "memo_hits": 1, "lists": 0, "listed": 0}
     q.separations(y, 0.3)  # not a start state: not kept
     assert q.info["queries"] == 4
     for k in range(K.CLIENT_QUERY_MEMO):
