@@ -1515,6 +1515,32 @@ def pair_rows(TA, TB, P):
     return out
 
 
+def _pairs_overlapping_py(P, loA, hiA, loB, hiB, keep):
+    for k in prange(P.shape[0]):  # each pair writes its own slot: both builds, one mask
+        keep[k] = _overlap(loA, hiA, P[k, 0], loB, hiB, P[k, 1])
+
+
+_pairs_overlapping = parallel_kernel(_pairs_overlapping_py, "_bp_pairs_overlapping")
+
+
+def pairs_overlapping(V, TA, TB, P, inflation, keep=None) -> np.ndarray:
+    """(K,) bool: which pairs (i, j) of `P` (rows of `TA`, `TB`) have overlapping boxes
+    at the static positions `V`, inflated by `inflation`.
+
+    The boxes and the test of `edge_edge_candidates` / `vertex_face_candidates` (the
+    same `_boxes` and `_overlap`), so a superset of a static query's pairs keeps exactly
+    that query's pairs (`penfree.core.trust.stencil_list`). Inputs are assumed validated
+    (V float64 C-contiguous, P int64 pairs in range); `keep`: a (K,) bool array to
+    write into, else a new one.
+    """
+    keep = np.empty(P.shape[0], dtype=np.bool_) if keep is None else keep
+    if P.shape[0]:
+        loA, hiA = _box_arrays(V, V, TA, inflation)
+        loB, hiB = (loA, hiA) if TB is TA else _box_arrays(V, V, TB, inflation)
+        _pairs_overlapping(P.shape[0], P, loA, hiA, loB, hiB, keep)
+    return keep
+
+
 def scan_cost(plan) -> float:
     """Estimated row-scan work of a plan per row: entries scanned plus
     `_CELL_VISIT_ENTRIES` per cell visited, over a strided sample of <= `_SAMPLE_ROWS`

@@ -38,7 +38,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from ..contact.broad_phase import _box_arrays, edge_edge_candidates, pair_rows, vertex_face_candidates
+from ..contact.broad_phase import edge_edge_candidates, pair_rows, pairs_overlapping, vertex_face_candidates
 from ..parallel import parallel_kernel
 from .planar import KIND_EDGE_EDGE, KIND_VERTEX_FACE
 
@@ -61,28 +61,9 @@ def contains(outer, inner) -> bool:
     return bool((outer[0] <= inner[0]).all() and (inner[1] <= outer[1]).all())
 
 
-#: Chunks of a list's pairs (each counts, then copies, its own kept rows: the rows come
-#: out in the list's order whatever the threads).
+#: Chunks of a list's kept pairs (each copies its own, in order: the rows come out in
+#: the list's order whatever the threads).
 _CHUNKS = 64
-
-
-def _kept_py(P, loA, hiA, loB, hiB, base, keep, counts):
-    # Pair k of P is the list's pair base + k; chunk c of the list counts its kept pairs.
-    n_chunks = counts.shape[0]
-    m = keep.shape[0]
-    for c in prange(n_chunks):
-        k0 = max(c * m // n_chunks, base)
-        k1 = min((c + 1) * m // n_chunks, base + P.shape[0])
-        n = 0
-        for k in range(k0, k1):
-            i, j = P[k - base, 0], P[k - base, 1]
-            ok = True
-            for a in range(3):
-                if loA[i, a] > hiB[j, a] or loB[j, a] > hiA[i, a]:  # `broad_phase._overlap`
-                    ok = False
-            keep[k] = ok
-            n += ok
-        counts[c] += n
 
 
 def _gather_py(keep, rows, kinds, offsets, out, out_kinds):
@@ -99,7 +80,6 @@ def _gather_py(keep, rows, kinds, offsets, out, out_kinds):
                 o += 1
 
 
-_kept = parallel_kernel(_kept_py, "_stencil_kept")
 _gather = parallel_kernel(_gather_py, "_stencil_gather")
 
 
@@ -149,16 +129,11 @@ class StencilList:
         when every pair is kept: read them only)."""
         m = len(self)
         keep = np.empty(m, dtype=np.bool_)
-        counts = np.zeros(_CHUNKS, dtype=np.int64)
-        if self.ee.shape[0]:
-            loE, hiE = _box_arrays(x, x, self.E, self.radius)
-            _kept(self.ee.shape[0], self.ee, loE, hiE, loE, hiE, 0, keep, counts)
-        if self.vf.shape[0]:
-            loQ, hiQ = _box_arrays(x, x, self.Q, self.radius)
-            loF, hiF = _box_arrays(x, x, self.F, self.radius)
-            _kept(self.vf.shape[0], self.vf, loQ, hiQ, loF, hiF, self.n_ee, keep, counts)
-        offsets = np.zeros(_CHUNKS + 1, dtype=np.int64)
-        np.cumsum(counts, out=offsets[1:])
+        pairs_overlapping(x, self.E, self.E, self.ee, self.radius, keep[:self.n_ee])
+        pairs_overlapping(x, self.Q, self.F, self.vf, self.radius, keep[self.n_ee:])
+        kept = np.zeros(m + 1, dtype=np.int64)
+        np.cumsum(keep, out=kept[1:])
+        offsets = kept[np.arange(_CHUNKS + 1) * m // _CHUNKS]  # where chunk c of `_gather_py` writes
         if offsets[-1] == m:  # every pair kept (dense contact within the radius): the list's own arrays
             return self.stencils, self.kinds
         out = np.empty((int(offsets[-1]), 4), dtype=np.int64)

@@ -859,3 +859,22 @@ def test_rows_of_another_set_follow_the_grids_axis_order(rng, axis):
     shared = plan.with_rows(loV, hiV, TV, 0.01)
     np.testing.assert_array_equal(shared.pairs(), vertex_face_candidates_brute(x, x, F, 0.01))
     np.testing.assert_array_equal(plan.edge_face_pairs(x), bp.edge_face_candidates(x, E, F))
+
+
+def test_pairs_overlapping_is_the_queries_box_test():
+    """`pairs_overlapping` of every pair against a brute-force box test in numpy, and of
+    a query's own pairs (all kept); boxes touching exactly count as overlapping."""
+    rng = np.random.default_rng(21)
+    V = np.round(rng.random((60, 3)), 2)  # a coarse lattice: many exactly touching boxes
+    E = np.array([[i, i + 1] for i in range(0, 60, 2)], dtype=np.int64)
+    F = np.array([[i, i + 1, i + 2] for i in range(0, 57, 3)], dtype=np.int64)
+    Q = np.arange(60, dtype=np.int64)[:, None]
+    for TA, TB, infl in ((E, E, 0.05), (Q, F, 0.0), (Q, F, 0.02)):
+        P = np.array([(i, j) for i in range(TA.shape[0]) for j in range(TB.shape[0])], dtype=np.int64)
+        lo = lambda T: V[T].min(axis=1) - infl  # noqa: E731
+        hi = lambda T: V[T].max(axis=1) + infl  # noqa: E731
+        want = ((lo(TA)[P[:, 0]] <= hi(TB)[P[:, 1]]) & (lo(TB)[P[:, 1]] <= hi(TA)[P[:, 0]])).all(axis=1)
+        np.testing.assert_array_equal(bp.pairs_overlapping(V, TA, TB, P, infl), want)
+        assert want.any() and not want.all()
+    pairs = edge_edge_candidates(V, V, E, 0.05)
+    assert pairs.shape[0] and bp.pairs_overlapping(V, E, E, pairs, 0.05).all()
