@@ -255,7 +255,9 @@ class ClientQuery:
         """`planar.candidate_stencils` of `x` within `radius` (`start` as in `separations`),
         the same arrays whether a fresh query or a `StencilList` answers."""
         e = self._entry(x, start)
-        if radius not in e[2]:
+        if radius in e[2]:
+            self.info["memo_hits"] += 1
+        else:
             e[2][radius] = self._stencils(x, radius, start)
         return e[2][radius]
 
@@ -283,7 +285,9 @@ class OwnClient:
     Radii ``(s / 2) min(R - thickness, d_v - thickness)`` with ``s`` =
     `RELAXED_RADIUS_SCALING` (= gamma_p 0.45 times 2), the candidates of the planar
     filter from penfree's broad phase within ``R + thickness``; the queries through a
-    `ClientQuery` (the replay's own, or one shared by the replays of a scene).
+    `ClientQuery` (the replay's own, or one shared by the replays of a scene). A pass's
+    separations are queried when its radii are first read (a warm start, the isotropic
+    filter): the planar filter never reads them.
     """
 
     def __init__(self, V, E, F, dhat, thickness, truncation, query=None):
@@ -301,10 +305,19 @@ class OwnClient:
         x = np.ascontiguousarray(x, dtype=np.float64)
         self.centers = x.copy()
         start, self._started = not self._started, True  # the replay's first pass: its start state
-        d = self.q.separations(x, self.R, start)
-        self.radii = 0.5 * RELAXED_RADIUS_SCALING * np.maximum(0.0, d - self.thickness)
+        # the radii when asked for: the planar filter never asks (only a warm start does)
+        self._pass, self._radii = (self.centers, self.R, start), None
         if self.truncation == "planar":
             self.stencils, self.kinds = self.q.stencils(x, self.R + self.thickness, start)
+
+    @property
+    def radii(self):
+        """(N,) the trust-region radii of the last pass (its separations queried on first use)."""
+        if self._radii is None:
+            x, R, start = self._pass
+            d = self.q.separations(x, R, start)
+            self._radii = 0.5 * RELAXED_RADIUS_SCALING * np.maximum(0.0, d - self.thickness)
+        return self._radii
 
     def warm_start(self, x, x_pred):
         x = np.array(x, dtype=np.float64)
