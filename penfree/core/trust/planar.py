@@ -102,7 +102,7 @@ def _ee_features(P, eac, ebc, coef):
         _set(coef, 1.0 - s, s, -(1.0 - t), -t)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _ee_coefficients(P, coef):
     """IPC Toolkit's ``edge_edge_distance_type`` and the coefficients of the type."""
     a, b, c = _dd(P, 1, 0, 1, 0), _dd(P, 1, 0, 3, 2), _dd(P, 3, 2, 3, 2)
@@ -193,7 +193,7 @@ def _degenerate_pt_coefficients(P, coef):
         _set(coef, 1.0, -t2, 0.0, -(1.0 - t2))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _pt_coefficients(P, coef):
     """IPC Toolkit's ``point_triangle_distance_type`` and the coefficients of the type."""
     ux, uy, uz = P[2, 0] - P[1, 0], P[2, 1] - P[1, 1], P[2, 2] - P[1, 2]
@@ -228,7 +228,7 @@ def _pt_coefficients(P, coef):
         _set(coef, 1.0, -(1.0 - bu - bv), -bu, -bv)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def stencil_coefficients(P, kind, coef):
     """Closest-point coefficients of a stencil: ``dv = sum_j coef_j P_j``.
 
