@@ -131,11 +131,11 @@ class StencilList:
         keep = np.empty(m, dtype=np.bool_)
         pairs_overlapping(x, self.E, self.E, self.ee, self.radius, keep[:self.n_ee])
         pairs_overlapping(x, self.Q, self.F, self.vf, self.radius, keep[self.n_ee:])
+        if np.count_nonzero(keep) == m:  # every pair kept (dense contact within the radius): the list's own arrays
+            return self.stencils, self.kinds
         kept = np.zeros(m + 1, dtype=np.int64)
         np.cumsum(keep, out=kept[1:])
         offsets = kept[np.arange(_CHUNKS + 1) * m // _CHUNKS]  # where chunk c of `_gather_py` writes
-        if offsets[-1] == m:  # every pair kept (dense contact within the radius): the list's own arrays
-            return self.stencils, self.kinds
         out = np.empty((int(offsets[-1]), 4), dtype=np.int64)
         out_kinds = np.empty(out.shape[0], dtype=np.int64)
         if m:
