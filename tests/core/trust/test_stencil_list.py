@@ -17,17 +17,17 @@ from penfree.core.trust.planar import (
 )
 from penfree.core.trust.stencil_list import StencilList, contains, region
 
+from _geom import grid
 from tests._samples import SAMPLES
 
 
 def _layers(rng, n=8, layers=3, gap=0.03):
-    u, w = np.meshgrid(np.linspace(0, 0.3, n), np.linspace(0, 0.3, n), indexing="ij")
-    V, F = [], []
-    for k in range(layers):
-        V.append(np.column_stack([u.ravel(), w.ravel(), np.full(n * n, k * gap)]))
-        q = np.arange(n * n).reshape(n, n)[:-1, :-1].ravel() + k * n * n
-        F += [np.column_stack([q, q + n, q + 1]), np.column_stack([q + 1, q + n, q + n + 1])]
-    return np.concatenate(V) + rng.normal(0, 0.004, (layers * n * n, 3)), np.concatenate(F)
+    """`layers` sheets of n x n vertices 0.3 wide, `gap` apart, jittered."""
+    h = 0.3 / (n - 1)
+    sheets = [grid(n, k * gap) for k in range(layers)]
+    V = np.concatenate([Vk * [h, h, 1.0] for Vk, _ in sheets])
+    F = np.concatenate([Fk + k * n * n for k, (_, Fk) in enumerate(sheets)])
+    return V + rng.normal(0, 0.004, V.shape), F
 
 
 def _rods(rng, n_rods=6, per=10):
