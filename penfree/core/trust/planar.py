@@ -445,17 +445,25 @@ def candidate_stencils(x, E, F, radius):
         Rows ``ea0, ea1, eb0, eb1`` or ``p, t0, t1, t2``.
     kinds : (C,) int64
     """
+    return pair_stencils(x.shape[0], E, F, *candidate_pairs(x, x, E, F, radius))
+
+
+def candidate_pairs(x0, x1, E, F, radius) -> tuple:
+    """``(ee, vf)``: the edge-edge pairs (rows of `E`) and vertex-face pairs (vertex,
+    row of `F`) whose boxes over the motion from `x0` to `x1`, inflated by `radius`,
+    overlap (`candidate_stencils` at ``x0 = x1``; `stencil_list` over a region), each
+    sorted lexicographically; (0, 2) where `E` or `F` is empty."""
     infl = float(radius)
-    parts, kinds = [], []
-    if E.shape[0]:
-        ee = edge_edge_candidates(x, x, E, infl)
-        parts.append(pair_rows(E, E, ee))
-        kinds.append(np.full(ee.shape[0], KIND_EDGE_EDGE))
-    if F.shape[0]:
-        # every vertex (the default), as ipctk pairs them: a segment's or a free vertex meets faces too
-        vf = vertex_face_candidates(x, x, F, infl)
-        parts.append(pair_rows(np.arange(x.shape[0], dtype=np.int64)[:, None], F, vf))
-        kinds.append(np.full(vf.shape[0], KIND_VERTEX_FACE))
-    if not parts:
-        return np.zeros((0, 4), np.int64), np.zeros(0, np.int64)
-    return np.ascontiguousarray(np.concatenate(parts), dtype=np.int64), np.concatenate(kinds).astype(np.int64)
+    none = np.zeros((0, 2), np.int64)
+    ee = edge_edge_candidates(x0, x1, E, infl) if E.shape[0] else none
+    # every vertex (the default), as ipctk pairs them: a segment's or a free vertex meets faces too
+    vf = vertex_face_candidates(x0, x1, F, infl) if F.shape[0] else none
+    return ee, vf
+
+
+def pair_stencils(n, E, F, ee, vf) -> tuple:
+    """``(stencils, kinds)``: the vertex rows of `candidate_pairs`'s pairs (of a scene of
+    `n` vertices), edge-edge first, and their kinds (both int64, C-contiguous)."""
+    st = np.concatenate([pair_rows(E, E, ee), pair_rows(np.arange(n, dtype=np.int64)[:, None], F, vf)])
+    kinds = np.concatenate([np.full(ee.shape[0], KIND_EDGE_EDGE), np.full(vf.shape[0], KIND_VERTEX_FACE)])
+    return np.ascontiguousarray(st, dtype=np.int64), kinds.astype(np.int64)

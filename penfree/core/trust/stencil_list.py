@@ -38,9 +38,9 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from ..contact.broad_phase import edge_edge_candidates, pair_rows, pairs_overlapping, vertex_face_candidates
+from ..contact.broad_phase import pairs_overlapping
 from ..parallel import parallel_kernel
-from .planar import KIND_EDGE_EDGE, KIND_VERTEX_FACE
+from .planar import candidate_pairs, pair_stencils
 
 #: Relative padding of a region (of each coordinate's magnitude plus the region's
 #: extent): ``x + beta (y - x)`` with ``beta = 1`` can land an ulp beyond ``y``.
@@ -105,23 +105,21 @@ class StencilList:
         self.E, self.F = E, F
         self.radius = float(radius)
         self.Q = np.arange(lo.shape[0], dtype=np.int64)[:, None]
-        ee = edge_edge_candidates(lo, hi, E, self.radius) if E.shape[0] else np.zeros((0, 2), np.int64)
-        vf = vertex_face_candidates(lo, hi, F, self.radius) if F.shape[0] else np.zeros((0, 2), np.int64)
-        st = np.concatenate([pair_rows(E, E, ee), pair_rows(self.Q, F, vf)]) if vf.shape[0] else pair_rows(E, E, ee)
-        kinds = np.concatenate([np.full(ee.shape[0], KIND_EDGE_EDGE), np.full(vf.shape[0], KIND_VERTEX_FACE)])
+        ee, vf = candidate_pairs(lo, hi, E, F, self.radius)  # the motion lo -> hi: each vertex's box
+        st, kinds = pair_stencils(lo.shape[0], E, F, ee, vf)
         sel = np.ones(st.shape[0], dtype=bool) if keep is None else np.asarray(keep(st), dtype=bool)
         self.n_ee = int(np.count_nonzero(sel[:ee.shape[0]]))
         self.ee = np.ascontiguousarray(ee[sel[:ee.shape[0]]])
         self.vf = np.ascontiguousarray(vf[sel[ee.shape[0]:]])
-        self.stencils = np.ascontiguousarray(st[sel], dtype=np.int64)
-        self.kinds = np.ascontiguousarray(kinds[sel], dtype=np.int64)
+        self.stencils = np.ascontiguousarray(st[sel])
+        self.kinds = np.ascontiguousarray(kinds[sel])
 
     def __len__(self):
         return self.stencils.shape[0]
 
     def covers(self, x) -> bool:
         """Whether every coordinate of `x` lies in the region (then `stencils_at` answers)."""
-        return bool((self.lo <= x).all() and (x <= self.hi).all())
+        return contains((self.lo, self.hi), (x, x))
 
     def stencils_at(self, x) -> tuple:
         """``(stencils, kinds)`` at `x` (inside the region): `candidate_stencils`'s
