@@ -27,6 +27,7 @@ from contextlib import contextmanager
 
 import h5py
 import numpy as np
+from isal import isal_zlib
 
 from ..constants import FORMAT_VERSION
 from ..errors import FormatError, InputError
@@ -40,8 +41,13 @@ H5_MAGIC = b"\x89HDF\r\n\x1a\n"
 #: Attributes with a meaning of their own; everything else is carried in ``Sequence.attrs``.
 RESERVED_ATTRS = ("penfree_format", "dt", "thickness", "contact_radius", "source")
 #: gzip level 4 + shuffle: smooth float frames shrink ~2x, noisy ones much less (17% on
-#: the 64K reference recordings; level 1 saves little time, BENCHMARKS.md).
+#: the 64K reference recordings; level 1 saves little time, BENCHMARKS.md). HDF5's own
+#: filter uses it for the small datasets it compresses itself.
 GZIP_LEVEL = 4
+#: The level of ISA-L's deflate (`isal`, levels 0-3) for the frames compressed here: the
+#: same standard zlib streams any HDF5 reader inflates, ~15x zlib's speed at level 4 for
+#: ~2% more bytes on the 64K reference recordings (issue 13, BENCHMARKS.md).
+ISAL_LEVEL = 1
 #: Frame datasets of at least this many frames are compressed by a thread pool of at
 #: most this many threads (`write_positions`).
 _POOL_MIN_FRAMES = 8
@@ -373,8 +379,9 @@ def _shuffled(frame: np.ndarray) -> bytes:
 
 
 def _deflate(shuffled: bytes) -> bytes:
-    """A shuffled chunk (`_shuffled`) as the deflate filter stores it."""
-    return zlib.compress(shuffled, GZIP_LEVEL)
+    """A shuffled chunk (`_shuffled`) as the deflate filter stores it: a zlib stream
+    (ISA-L's deflate at `ISAL_LEVEL`, which releases the GIL)."""
+    return isal_zlib.compress(shuffled, ISAL_LEVEL)
 
 
 def _reused_or_deflated(frame: np.ndarray, stored) -> bytes:
@@ -383,8 +390,8 @@ def _reused_or_deflated(frame: np.ndarray, stored) -> bytes:
     shuffled = _shuffled(frame)
     if stored is not None and stored[0] == 0:
         try:
-            plain = zlib.decompress(stored[1])
-        except zlib.error:
+            plain = isal_zlib.decompress(stored[1])
+        except (zlib.error, isal_zlib.error):
             plain = None
         if plain == shuffled:
             return stored[1]

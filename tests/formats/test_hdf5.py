@@ -1,6 +1,7 @@
 """HDF5 layout v1: round trips, files written by others, and refused inputs."""
 
 import os
+import zlib
 
 import h5py
 import numpy as np
@@ -179,9 +180,11 @@ def test_missing_file(tmp_path):
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("T", [3, 8, 13, 40])
 def test_pooled_frame_writes_are_ordinary_gzip_shuffle_chunks(tmp_path, rng, dtype, T):
-    # Frames compressed by the thread pool and written as raw chunks must be the chunks
-    # HDF5's own gzip + shuffle filters write: the same bytes, filters and values, in
-    # frame order (odd counts cross the pool's in-flight window), for any reader.
+    # Frames compressed by the thread pool (ISA-L's deflate) and written as raw chunks
+    # must be chunks of HDF5's own gzip + shuffle pipeline: the same filters and values,
+    # in frame order (odd counts cross the pool's in-flight window), and each chunk a zlib
+    # stream that the reference inflater (the stdlib's zlib) turns into exactly the
+    # shuffled bytes of HDF5's own chunk, so any reader decodes them.
     from penfree.formats.hdf5 import GZIP_LEVEL, write_positions
 
     X = (rng.normal(size=(T, 257, 3)) * 10.0 ** rng.integers(-3, 4, size=(T, 1, 1))).astype(dtype)
@@ -196,7 +199,9 @@ def test_pooled_frame_writes_are_ordinary_gzip_shuffle_chunks(tmp_path, rng, dty
                (db.dtype, db.chunks, db.compression, db.compression_opts, db.shuffle)
         np.testing.assert_array_equal(da[:], X)
         for t in range(T):
-            assert da.id.read_direct_chunk((t, 0, 0)) == db.id.read_direct_chunk((t, 0, 0))
+            (mask_a, blob_a), (mask_b, blob_b) = da.id.read_direct_chunk((t, 0, 0)), db.id.read_direct_chunk((t, 0, 0))
+            assert mask_a == mask_b == 0
+            assert zlib.decompress(blob_a) == zlib.decompress(blob_b), t
 
 
 def _chunks(path, name="positions"):
@@ -241,6 +246,27 @@ def test_frames_copied_from_the_source_only_where_they_decode_to_the_same_bytes(
     blobs, values = _chunks(tmp_path / "out2.h5")
     np.testing.assert_array_equal(values, X)
     assert blobs[3] == _deflate(_shuffled(X[3]))
+
+
+def test_a_damaged_source_chunk_is_compressed_afresh(tmp_path, rng):
+    # A source chunk that is not a zlib stream, or one cut short, is never copied: the frame
+    # is compressed from the data (the inflater's error is caught, not raised).
+    from penfree.formats.hdf5 import _deflate, _shuffled, write_positions
+
+    X = rng.normal(size=(9, 40, 3)).astype(np.float32)
+    src = tmp_path / "src.h5"
+    with h5py.File(src, "w") as f:
+        f.create_dataset("positions", data=X, chunks=(1, 40, 3), compression="gzip", shuffle=True)
+    with h5py.File(src, "r+") as f:
+        good = f["positions"].id.read_direct_chunk((4, 0, 0))[1]
+        f["positions"].id.write_direct_chunk((2, 0, 0), b"not a zlib stream")
+        f["positions"].id.write_direct_chunk((4, 0, 0), good[: len(good) // 2])
+    with h5py.File(tmp_path / "out.h5", "w") as f:
+        write_positions(f, "positions", X, source=str(src))
+    blobs, values = _chunks(tmp_path / "out.h5")
+    np.testing.assert_array_equal(values, X)
+    assert blobs[2] == _deflate(_shuffled(X[2])) and blobs[4] == _deflate(_shuffled(X[4]))
+    assert zlib.decompress(blobs[2]) == _shuffled(X[2])
 
 
 @pytest.mark.parametrize("source", ["<memory>", "missing.h5", "not_h5.txt", "other_shape.h5", "float64.h5"])
