@@ -4,9 +4,11 @@ overlap, found with a uniform grid (dense or hashed) in Numba.
 Design. The boxes of the "grid" set B are entered into a uniform grid of cubic
 cells, twice the median box extent along the axis where that median is largest,
 doubled while a few huge boxes would cost too much; a min fold may instead take
-per-axis sizes, twice the median extent along each axis, where a sampled scan cost
-says they pay (`choose_cells`: a dense bundle of yarns, whose cubes, sized by the
-long axis, hold many strands each). The cell table is dense while
+per-axis sizes, twice the median extent along each axis, or slabs, thick across the
+scene's thinnest axis and smaller along the others, where a sampled scan cost says
+they pay (`choose_cells`: per-axis cells for a dense bundle of yarns, whose cubes,
+sized by the long axis, hold many strands each; slabs for a draped sheet, whose cubes
+hold more entries that a row scans in vain). The cell table is dense while
 it has at most `_DENSE_FACTOR` cells per entry, else hashed (each entry keeps its
 cell key, so collisions cost time, never correctness). Each entry carries a copy of
 its box, so a cell is scanned sequentially. The key's fastest axis, called x below, is
@@ -157,10 +159,15 @@ _SCAN_BLOCK = 256
 #: The fused start pass's scratch for one row's box hits (`_start_chunks`); a row with
 #: more is visited again into a scratch twice its count.
 _ROW_HITS = 256
-#: Cell shapes of a plan: cubes at the largest axis's size, or per-axis sizes.
-CELL_SHAPES = ("cube", "axis")
+#: Cell shapes of a plan: cubes at the largest axis's size, per-axis sizes, or slabs:
+#: cells `_SLAB_ACROSS` times the cube's size along the axis where the scene spans
+#: least, `_SLAB_ALONG` times it along the other two (a sheet: one or two layers of cells
+#: across it, so a row visits few cells, each holding a patch of the sheet).
+CELL_SHAPES = ("cube", "axis", "slab")
+_SLAB_ACROSS = 8.0
+_SLAB_ALONG = 0.75
 #: `choose_cells`: a visited cell costs about as much as this many scanned entries, and
-#: per-axis cells are chosen only when their estimated scan costs less than this
+#: other cells than cubes are chosen only when their estimated scan costs less than this
 #: fraction of the cubes' (the estimate is a sample; a near tie keeps the cubes).
 _CELL_VISIT_ENTRIES = 2.0
 _AXIS_GAIN = 0.8
@@ -1212,6 +1219,10 @@ class _Plan:
         # thin axes, as in a bundle of yarns (`choose_cells` decides from counts).
         if cells == "cube":
             h = np.full(3, h.max())
+        elif cells == "slab":
+            cube = h.max()
+            h = np.full(3, _SLAB_ALONG * cube)
+            h[int(np.argmin(spans))] = _SLAB_ACROSS * cube
         covering = self.self_query and listing
         self.perm = perm = _axis_order(loB, origin, h) if _AXIS_ORDER else None
         if perm is not None:  # from here on the plan sees the boxes' axes in key order
@@ -1571,13 +1582,16 @@ def choose_cells(x, TA, TB, inflation, self_query) -> str:
     query again and again (`proximity.SeparationQuery`) choose once and pass it on.
     Measured (issue 13, 64K yarn bundle at its separations' reach): cubes scan ~400
     entries per row for 9 overlaps, per-axis cells ~130, and the separation query
-    runs 1.25-1.5x faster; on the 64K cloth the counts are equal and cubes stay.
+    runs 1.25-1.5x faster. On the 64K cloth per-axis cells cost what cubes do, slabs
+    0.70 of it: its two folds run 1.24x faster (the same bits), `deform --model auto`
+    1.15x (thirty-eighth session).
     """
     loA, hiA = _box_arrays(x, x, TA, inflation)
     loB, hiB = (loA, hiA) if self_query else _box_arrays(x, x, TB, inflation)
     cost = {c: scan_cost(_Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation, listing=False, cells=c))
             for c in CELL_SHAPES}
-    return "axis" if cost["axis"] < _AXIS_GAIN * cost["cube"] else "cube"
+    best = min(CELL_SHAPES, key=lambda c: (cost[c], CELL_SHAPES.index(c)))
+    return best if cost[best] < _AXIS_GAIN * cost["cube"] else "cube"
 
 
 def fold_min_sq(x, TA, TB, inflation, partial, self_query, cells="cube"):

@@ -271,9 +271,46 @@ def test_per_axis_cells_are_chosen_where_they_scan_less(rng):
     assert cost["axis"] < 0.6 * cost["cube"], cost
     assert bp.choose_cells(V, E, E, infl, True) == "axis"
     assert proximity.separation_cells(V, E, none, 2 * infl) == ("axis", "cube")
-    Vs, Fs = _sheet(30, rng)
-    Es = edges_from_faces(Fs)
-    assert proximity.separation_cells(Vs, Es, Fs, 0.02) == ("cube", "cube")
+
+
+
+def _stack(n, layers, gap, rng):
+    """`layers` copies of one `_sheet` layer, `gap` apart along z (its thin axis)."""
+    V, F = _sheet(n, rng, lift=gap)
+    V1, F1 = V[: n * n], F[: F.shape[0] // 2]
+    V = np.concatenate([V1 + [0.0, 0.0, k * gap] for k in range(layers)])
+    F = np.concatenate([F1 + k * n * n for k in range(layers)])
+    return np.ascontiguousarray(V), F
+
+
+@pytest.mark.parametrize("layers, gap", [(1, 0.0), (2, 0.01)])
+def test_slab_cells_are_chosen_for_sheets(rng, layers, gap):
+    # A sheet (or two) at its separations' reach: slabs, cells thick across z (the axis
+    # of least span) and smaller along the sheet, hold fewer entries that a row scans
+    # in vain than cubes, and visit no more cell layers across it.
+    V, F = _stack(30, layers, gap, rng)
+    E = edges_from_faces(F)
+    infl = 0.5 * 1.5 / 30
+    lo, hi = bp._box_arrays(V, V, E, infl)
+    plans = {c: bp._Plan(lo, hi, E, lo, hi, E, True, infl, listing=False, cells=c) for c in bp.CELL_SHAPES}
+    cost = {c: bp.scan_cost(p) for c, p in plans.items()}
+    assert cost["slab"] < 0.8 * cost["cube"], cost
+    z = 2 if plans["slab"].perm is None else list(plans["slab"].perm).index(2)  # z's place in the key
+    assert plans["slab"].dims[z] <= plans["cube"].dims[z]
+    assert proximity.separation_cells(V, E, F, 2 * infl)[0] == "slab"
+
+
+def test_slab_cells_are_not_chosen_for_a_deep_stack(rng):
+    # 24 layers closer than a slab's thickness: a slab's cell holds a patch of every
+    # layer, so rows scan more entries than in cubes; per-axis cells scan least.
+    V, F = _stack(20, 24, 0.05, rng)
+    E = edges_from_faces(F)
+    infl = 0.5 * 1.5 / 20
+    lo, hi = bp._box_arrays(V, V, E, infl)
+    cost = {c: bp.scan_cost(bp._Plan(lo, hi, E, lo, hi, E, True, infl, listing=False, cells=c))
+            for c in bp.CELL_SHAPES}
+    assert cost["slab"] > cost["cube"] > cost["axis"], cost
+    assert proximity.separation_cells(V, E, F, 2 * infl) == ("axis", "axis")
 
 
 def test_separation_query_chooses_cells_once_per_octave(rng, monkeypatch):
