@@ -101,6 +101,7 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
     set_threads(threads)
     if not serial_only and is_long(input_path, "sequence", in_format):
         return _deform_long(input_path, output_path, opts, overwrite, with_stats, as_json)
+    t0 = time.perf_counter()  # the summary's wall time: reading, the steps and writing
     seq = read_sequence(input_path, format=in_format, prims=usd_prims, obstacles=usd_obstacles)
     weights = _read_weights(input_path, weights_name, seq) if weights_name else None
     cm = None
@@ -115,7 +116,6 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
                          dhat=resolve_dhat(dhat, seq.contact_radius if contact_radius is None else contact_radius,
                                            seq.thickness if thickness is None else thickness))
 
-    t0 = time.perf_counter()
     n_steps = step_indices(seq.n_frames, frame_slice).size  # (exit 2 here when it selects none)
     with Progress(n_steps, "deform") as bar:
         result = deform_sequence(

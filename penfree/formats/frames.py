@@ -46,7 +46,10 @@ class Frames:
 
     def frame(self, t: int) -> np.ndarray:
         """Frame `t` as ``(N, 3)`` of `dtype`; InputError naming it when not finite."""
-        a = np.asarray(self._read(int(t)), dtype=self.dtype)
+        return self.check(t, np.asarray(self._read(int(t)), dtype=self.dtype))
+
+    def check(self, t: int, a: np.ndarray) -> np.ndarray:
+        """`a`, frame `t` read elsewhere, checked as `frame` checks it."""
         if not np.isfinite(a).all():
             raise InputError(f"{self.name} must be finite; frame {t} holds NaN or Inf in {self.where}:/{self.name}")
         if a.size:

@@ -171,9 +171,71 @@ def read_positions(ds, where, name="positions", window=None) -> np.ndarray:
         raise InputError(f"positions must hold at least 2 frames; got {ds.shape[0]} in {where}:/positions")
     start, stop = frame_window(window, ds.shape[0], where)
     out = np.empty((stop - start,) + frames.shape[1:], dtype=frames.dtype)
+    if not read_frames(ds, range(start, stop), out):
+        for s in range(start, stop):
+            out[s - start] = frames.frame(s)
+        return out
     for s in range(start, stop):
-        out[s - start] = frames.frame(s)
+        frames.check(s, out[s - start])
     return out
+
+
+def _inflatable(ds, dtype) -> bool:
+    """Whether the chunks of `ds` can be inflated here into frames of `dtype`: one
+    ``(1, N, 3)`` frame per chunk, stored as `dtype` itself (a native float), through
+    exactly HDF5's shuffle then deflate filters (penfree's own layout)."""
+    if ds.ndim != 3 or ds.chunks != (1,) + ds.shape[1:] or np.dtype(ds.dtype) != dtype:
+        return False
+    if dtype.kind != "f" or not dtype.isnative:
+        return False
+    plist = ds.id.get_create_plist()
+    pipeline = [plist.get_filter(k)[0] for k in range(plist.get_nfilters())]
+    return pipeline == [h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_DEFLATE]
+
+
+def read_frames(ds, rows, out) -> bool:
+    """``out[i] = ds[k]`` for the i-th frame `k` of `rows`, the chunks inflated by a thread
+    pool (ISA-L, which releases the GIL, as `write_positions` deflates them); False, with
+    nothing read, unless `ds` holds penfree's layout (`_inflatable`) and there are at least
+    `_POOL_MIN_FRAMES` rows.
+
+    Each chunk is read raw and unshuffled here; a chunk that is not allocated, whose
+    filters were skipped, or that does not inflate to exactly one frame is read by HDF5
+    itself (its fill value, or its own error for a damaged file).
+    """
+    if len(rows) < _POOL_MIN_FRAMES or out.shape[0] != len(rows) or not _inflatable(ds, out.dtype):
+        return False
+    size = out.dtype.itemsize
+
+    def inflate(i, blob):
+        try:
+            raw = isal_zlib.decompress(blob)
+        except (zlib.error, isal_zlib.error):
+            return False
+        frame = out[i].reshape(-1).view(np.uint8).reshape(-1, size)
+        if len(raw) != frame.size:
+            return False
+        frame[...] = np.frombuffer(raw, dtype=np.uint8).reshape(size, -1).T  # undo the shuffle
+        return True
+
+    def finish(i, k, job):
+        if job is None or not job.result():
+            out[i] = ds[k]
+
+    workers = max(1, min(os.cpu_count() or 1, _POOL_MAX_WORKERS))
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        pending = deque()  # at most 2 x workers chunks in flight
+        for i, k in enumerate(rows):
+            try:
+                mask, blob = ds.id.read_direct_chunk((int(k), 0, 0))
+            except (OSError, KeyError, ValueError, RuntimeError):
+                mask, blob = -1, None  # not allocated (or unreadable): HDF5 reads the frame
+            pending.append((i, k, pool.submit(inflate, i, blob) if mask == 0 else None))
+            if len(pending) == 2 * workers:
+                finish(*pending.popleft())
+        for job in pending:
+            finish(*job)
+    return True
 
 
 def frame_window(window, T, where) -> tuple:

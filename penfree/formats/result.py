@@ -36,8 +36,8 @@ from ..errors import FormatError, InputError
 from ..sequence import Sequence
 from .atomic import atomic_file
 from .frames import Frames, StepRows
-from .hdf5 import (frame_window, has_h5_magic, open_h5, read_attrs, read_from_h5, write_attrs, write_positions,
-                   write_to_h5)
+from .hdf5 import (frame_window, has_h5_magic, open_h5, read_attrs, read_frames, read_from_h5, write_attrs,
+                   write_positions, write_to_h5)
 
 #: Per-step datasets that every reader needs (SPEC section 8); others may require more
 #: (`read_result`'s `require`, e.g. ``certificate_margin`` for ``report``).
@@ -286,8 +286,10 @@ def _read_deformed(ds, where, frame=None, rows=None) -> np.ndarray:
     dtype = _check_deformed(ds, where)  # before its shape is used
     rows = range(ds.shape[0]) if rows is None else rows
     out = np.empty((len(rows),) + ds.shape[1:], dtype=dtype)
+    pooled = read_frames(ds, rows, out)  # else frame by frame below
     for i, k in enumerate(rows):
-        out[i] = ds[k]
+        if not pooled:
+            out[i] = ds[k]
         if not np.isfinite(out[i]).all():
             at = f" (frame {int(frame[k])})" if frame is not None and k < np.size(frame) else ""
             raise FormatError(f"steps/deformed must be finite; step {k}{at} holds NaN or Inf in {where}:/steps/deformed")

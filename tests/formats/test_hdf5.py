@@ -322,3 +322,82 @@ def test_scalar_obstacle_positions_are_named(tmp_path):
         g["faces"] = np.array([[0, 1, 2]])
     with pytest.raises(FormatError, match=r"obstacles/wall/positions must be \(T, N, 3\); got \(\)"):
         read_sequence(p)
+
+
+def _layout_file(path, X, **kw):
+    with h5py.File(path, "w") as f:
+        f.create_dataset("positions", data=X, chunks=(1,) + X.shape[1:], compression="gzip", shuffle=True, **kw)
+        f.create_dataset("edges", data=np.c_[np.arange(X.shape[1] - 1), np.arange(1, X.shape[1])])
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, ">f4"])
+@pytest.mark.parametrize("T", [7, 8, 13, 40])
+def test_pooled_frame_reads_equal_hdf5s_own(tmp_path, rng, dtype, T):
+    # Frames inflated by the pool (penfree's layout, at least 8 of them) are the frames HDF5
+    # decodes, for a whole file and a frame window (odd counts cross the pool's window); a
+    # big-endian dataset or fewer frames are read by HDF5 itself, to the same values.
+    from penfree.formats.hdf5 import _inflatable, read_frames
+
+    X = (rng.normal(size=(T, 301, 3)) * 10.0 ** rng.integers(-3, 4, size=(T, 1, 1))).astype(dtype)
+    _layout_file(tmp_path / "x.h5", X)
+    with h5py.File(tmp_path / "x.h5") as f:
+        ds = f["positions"]
+        native = np.dtype(dtype).newbyteorder("=")
+        assert _inflatable(ds, native) == np.dtype(dtype).isnative
+        out = np.empty(X.shape, dtype=native)
+        assert read_frames(ds, range(T), out) == (T >= 8 and np.dtype(dtype).isnative)
+        rows = [T - 1, 0, *range(2, T - 1)]
+        some = np.empty((len(rows),) + X.shape[1:], dtype=native)
+        pooled = read_frames(ds, rows, some)
+        if pooled:
+            np.testing.assert_array_equal(out, ds[:])
+            np.testing.assert_array_equal(some, ds[:][rows])
+    seq = read_sequence(tmp_path / "x.h5")
+    np.testing.assert_array_equal(seq.positions, X)
+    np.testing.assert_array_equal(read_sequence(tmp_path / "x.h5", frame_window=(1, T)).positions, X[1:])
+
+
+def test_pooled_reads_leave_odd_chunks_to_hdf5(tmp_path, rng):
+    # A chunk never written (HDF5's fill value) and one stored with its deflate filter
+    # skipped (filter mask 2) are each read by HDF5 itself.
+    from penfree.formats.hdf5 import _shuffled, read_frames
+
+    T, N = 12, 50
+    X = rng.normal(size=(T, N, 3)).astype(np.float32)
+    with h5py.File(tmp_path / "x.h5", "w") as f:
+        ds = f.create_dataset("positions", shape=X.shape, dtype=np.float32, chunks=(1, N, 3), compression="gzip",
+                              shuffle=True, fillvalue=2.5)
+        for t in range(T):
+            if t == 3:
+                continue  # not allocated
+            if t == 5:
+                ds.id.write_direct_chunk((t, 0, 0), _shuffled(X[t]), filter_mask=2)  # deflate skipped
+            else:
+                ds[t] = X[t]
+    with h5py.File(tmp_path / "x.h5") as f:
+        out = np.empty(X.shape, dtype=np.float32)
+        assert read_frames(f["positions"], range(T), out)
+        kept = [t for t in range(T) if t != 3]
+        np.testing.assert_array_equal(out[kept], X[kept])
+        np.testing.assert_array_equal(out[3], np.full((N, 3), 2.5, dtype=np.float32))
+
+
+def test_a_damaged_chunk_read_by_the_pool_is_a_format_error(tmp_path, rng):
+    # A chunk that is not a zlib stream is handed to HDF5, whose error names the file.
+    T, N = 12, 50
+    X = rng.normal(size=(T, N, 3)).astype(np.float32)
+    _layout_file(tmp_path / "x.h5", X)
+    with h5py.File(tmp_path / "x.h5", "r+") as f:
+        f["positions"].id.write_direct_chunk((6, 0, 0), b"\x00garbage" * 20)
+    with pytest.raises(FormatError, match=f"{tmp_path / 'x.h5'} is damaged"):
+        read_sequence(tmp_path / "x.h5")
+
+
+def test_a_non_finite_frame_is_named_after_a_pooled_read(tmp_path, rng):
+    T, N = 12, 50
+    X = rng.normal(size=(T, N, 3)).astype(np.float32)
+    X[9, 4, 1] = np.nan
+    X[10, 0, 0] = np.inf
+    _layout_file(tmp_path / "x.h5", X)
+    with pytest.raises(InputError, match=f"positions must be finite; frame 9 holds NaN or Inf in {tmp_path / 'x.h5'}"):
+        read_sequence(tmp_path / "x.h5")
