@@ -2,7 +2,7 @@
 
 `penfree.scaleout` merges the frame ranges of a long recording into one result; the
 result holds the input's positions and every step's deformed state, each as large as
-the recording. The merge hands the writers (`hdf5.write_positions`, `result.write_result`)
+the recording. The merge hands the writers (`chunks.write_positions`, `result.write_result`)
 a `Frames` in their place: the writer asks for one frame after another, and only that
 frame (and, for the partial results, one range's deformed states) is in memory. The
 ``--per-vertex`` residuals (``(S, N)`` per dataset) go the same way as `StepRows`.

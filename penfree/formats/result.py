@@ -36,8 +36,8 @@ from ..errors import FormatError, InputError
 from ..sequence import Sequence
 from .atomic import atomic_file
 from .frames import Frames, StepRows
-from .hdf5 import (frame_window, has_h5_magic, open_h5, read_attrs, read_frames, read_from_h5, write_attrs,
-                   write_positions, write_to_h5)
+from .chunks import read_frames, write_positions
+from .hdf5 import frame_window, has_h5_magic, open_h5, read_attrs, read_from_h5, write_attrs, write_to_h5
 
 #: Per-step datasets that every reader needs (SPEC section 8); others may require more
 #: (`read_result`'s `require`, e.g. ``certificate_margin`` for ``report``).
