@@ -46,6 +46,11 @@ def _inflatable(ds, dtype) -> bool:
     return dtype.kind == "f" and dtype.isnative and _shuffle_deflate(ds)
 
 
+def _workers() -> int:
+    """Threads of a frame pool: the cores, at most `_POOL_MAX_WORKERS`."""
+    return max(1, min(os.cpu_count() or 1, _POOL_MAX_WORKERS))
+
+
 def _shuffle_deflate(ds) -> bool:
     """Whether the filters of dataset `ds` are exactly HDF5's shuffle, then deflate."""
     plist = ds.id.get_create_plist()
@@ -68,12 +73,9 @@ def read_frames(ds, rows, out) -> bool:
     size = out.dtype.itemsize
 
     def inflate(i, blob):
-        try:
-            raw = isal_zlib.decompress(blob)
-        except (zlib.error, isal_zlib.error):
-            return False
+        raw = _inflated(blob)
         frame = out[i].reshape(-1).view(np.uint8).reshape(-1, size)
-        if len(raw) != frame.size:
+        if raw is None or len(raw) != frame.size:
             return False
         frame[...] = np.frombuffer(raw, dtype=np.uint8).reshape(size, -1).T  # undo the shuffle
         return True
@@ -82,7 +84,7 @@ def read_frames(ds, rows, out) -> bool:
         if job is None or not job.result():
             out[i] = ds[k]
 
-    workers = max(1, min(os.cpu_count() or 1, _POOL_MAX_WORKERS))
+    workers = _workers()
     with ThreadPoolExecutor(max_workers=workers) as pool:
         pending = deque()  # at most 2 x workers chunks in flight
         for i, k in enumerate(rows):
@@ -115,14 +117,18 @@ def _reused_or_deflated(frame: np.ndarray, stored) -> bytes:
     """`stored` (a source chunk's ``(filter_mask, bytes)``, or None) if it decodes to
     exactly `frame`'s bytes, else `frame` shuffled and deflated."""
     shuffled = _shuffled(frame)
-    if stored is not None and stored[0] == 0:
-        try:
-            plain = isal_zlib.decompress(stored[1])
-        except (zlib.error, isal_zlib.error):
-            plain = None
-        if plain == shuffled:
-            return stored[1]
+    if stored is not None and stored[0] == 0 and _inflated(stored[1]) == shuffled:
+        return stored[1]
     return _deflate(shuffled)
+
+
+def _inflated(blob: bytes):
+    """The bytes a zlib stream inflates to (ISA-L, which releases the GIL), or None when
+    `blob` is not one (a damaged chunk: HDF5 or a fresh compression decides)."""
+    try:
+        return isal_zlib.decompress(blob)
+    except (zlib.error, isal_zlib.error):
+        return None
 
 
 @contextmanager
@@ -179,7 +185,7 @@ def write_positions(g, name, positions, dtype=None, source=None) -> None:
         return
     dset = g.create_dataset(name, shape=data.shape, dtype=dtype, chunks=chunks, compression="gzip",
                             compression_opts=GZIP_LEVEL, shuffle=True)
-    workers = max(1, min(os.cpu_count() or 1, _POOL_MAX_WORKERS))
+    workers = _workers()
     with _chunk_source(source, name, data) as src, ThreadPoolExecutor(max_workers=workers) as pool:
         # written in frame order, at most 2 x workers frames in flight: memory stays a
         # few compressed frames, however long the sequence

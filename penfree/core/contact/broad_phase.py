@@ -170,7 +170,7 @@ _SLAB_ALONG = 0.75
 #: other cells than cubes are chosen only when their estimated scan costs less than this
 #: fraction of the cubes' (the estimate is a sample; a near tie keeps the cubes).
 _CELL_VISIT_ENTRIES = 2.0
-_AXIS_GAIN = 0.8
+_SHAPE_GAIN = 0.8
 #: Boxes sampled (strided) for the median extents that size the cells: the cell size
 #: sets the speed, never the pairs, and a median of 4K boxes is within ~2% of all of
 #: theirs (a 64K-box median took 0.9 ms per axis, per plan).
@@ -1574,11 +1574,11 @@ def scan_cost(plan) -> float:
 
 def choose_cells(x, TA, TB, inflation, self_query) -> str:
     """The cell shape (`CELL_SHAPES`) under which the min fold of these primitives at
-    `inflation` is estimated to scan less (`scan_cost` of both plans, built once each):
-    "axis" only when it costs under `_AXIS_GAIN` of the cubes'.
+    `inflation` is estimated to scan least (`scan_cost` of a plan per shape, built once
+    each): another shape than cubes only when it costs under `_SHAPE_GAIN` of the cubes'.
 
     The shape changes which cells the rows scan, never the pairs they find, so a
-    fold's result is the same bits under either; callers that run the same scene's
+    fold's result is the same bits under any; callers that run the same scene's
     query again and again (`proximity.SeparationQuery`) choose once and pass it on.
     Measured (issue 13, 64K yarn bundle at its separations' reach): cubes scan ~400
     entries per row for 9 overlaps, per-axis cells ~130, and the separation query
@@ -1591,7 +1591,7 @@ def choose_cells(x, TA, TB, inflation, self_query) -> str:
     cost = {c: scan_cost(_Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation, listing=False, cells=c))
             for c in CELL_SHAPES}
     best = min(CELL_SHAPES, key=lambda c: (cost[c], CELL_SHAPES.index(c)))
-    return best if cost[best] < _AXIS_GAIN * cost["cube"] else "cube"
+    return best if cost[best] < _SHAPE_GAIN * cost["cube"] else "cube"
 
 
 def fold_min_sq(x, TA, TB, inflation, partial, self_query, cells="cube"):
