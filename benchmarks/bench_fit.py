@@ -5,11 +5,17 @@ certificate + writing x_def into a preallocated ``out`` + residual summaries;
 ``no-eval`` is ``evaluate=False``, without the summaries; ``serial`` forces
 the serial kernels), the homogeneous
 ``N x 4`` ``numpy.linalg.lstsq`` of the same fit (plus forming x_def), and the
-memory floor (one ``np.add(x_prev, x, out=buf)`` pass). Medians of repeats,
-one process, float32 and float64. Then first-call JIT time against cached, in
+memory floor (one ``np.add(x_prev, x, out=out)`` pass, into the array ``fit_step``
+writes: where arrays lie modulo 4 KiB changes both, a fresh buffer measured the
+floor 0.042 or 0.057 ms by where it landed). Medians of repeats,
+one process, float32 and float64. ``fit_step``, ``no-eval`` and the floor are
+timed in turns, ``--rounds`` times, and each ratio to the floor is the median
+of the rounds' ratios, with their range: a machine's state drifts (the floor of
+one scene measured 0.041-0.086 ms in separate runs), and timing the floor minutes
+after the fit compared two states. Then first-call JIT time against cached, in
 fresh subprocesses sharing one new Numba cache directory.
 
-    .venv/bin/python benchmarks/bench_fit.py [--repeats 30] [--vertices 65536] [--threads T]
+    .venv/bin/python benchmarks/bench_fit.py [--repeats 30] [--rounds 5] [--vertices 65536] [--threads T]
 
 On a machine shared with other CPU-bound work, ``--threads 1`` gives the steadier
 figures: a parallel region waits for its slowest thread, and a descheduled thread
@@ -97,6 +103,25 @@ def median_time(fn, repeats):
     return float(np.median(timings(fn, repeats)))
 
 
+def rounds_against(floor, fns, repeats, rounds):
+    """Median times of `fns` and of `floor`, timed in turns `rounds` times, and each fn's
+    ratios to the floor round by round: ``(times, floor_time, ratios)``, where
+    ``ratios[k]`` lists the rounds' ratios of ``fns[k]``."""
+    runs = [[] for _ in fns]
+    floors = []
+    for _ in range(rounds):
+        for k, fn in enumerate(fns):
+            runs[k].append(median_time(fn, repeats))
+        floors.append(median_time(floor, repeats))
+    ratios = [[t / f for t, f in zip(run, floors)] for run in runs]
+    return [float(np.median(run)) for run in runs], float(np.median(floors)), ratios
+
+
+def ratio_text(ratios):
+    """``median (min-max)`` of a list of ratios."""
+    return f"{np.median(ratios):.2f}x ({min(ratios):.2f}-{max(ratios):.2f})"
+
+
 def lstsq_step(x_prev, x):
     x64 = x.astype(np.float64)
     d = x64 - x_prev
@@ -125,6 +150,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--vertices", type=int, default=65536)
     ap.add_argument("--repeats", type=int, default=30)
+    ap.add_argument("--rounds", type=int, default=5, help="turns of fit_step, no-eval and the floor")
     ap.add_argument("--no-jit", action="store_true", help="skip the subprocess JIT timing")
     ap.add_argument("--threads", type=int, default=None, help="Numba threads (default: all)")
     args = ap.parse_args(argv)
@@ -134,9 +160,10 @@ def main(argv=None):
         numba.set_num_threads(args.threads)
 
     print(f"penfree {penfree.__version__}, numpy {np.__version__}, numba {numba.__version__}, "
-          f"threads {numba.get_num_threads()}, N = {args.vertices}, median of {args.repeats}")
+          f"threads {numba.get_num_threads()}, N = {args.vertices}, median of {args.repeats}, "
+          f"{args.rounds} rounds")
     hdr = (f"{'scene':<7} {'dtype':<8} {'fit_step':>10} {'no-eval':>9} {'serial':>9} {'moments':>9} {'apply':>9} "
-           f"{'lstsq':>10} {'floor':>9} {'lstsq/fit':>10} {'fit/floor':>10} {'no-eval/floor':>14}  "
+           f"{'lstsq':>10} {'floor':>9} {'lstsq/fit':>10} {'fit/floor (rounds)':>20} {'no-eval/floor (rounds)':>23}  "
            f"model/proj/rank/cert")
     print(hdr)
     print("-" * len(hdr))
@@ -145,11 +172,12 @@ def main(argv=None):
         for dtype in (np.float32, np.float64):
             x_prev, x = x_prev64.astype(dtype), x64.astype(dtype)
             out = np.empty_like(x)
-            buf = np.empty_like(x)
             r = penfree.fit_step(x_prev, x, out=out)
             m = fit_moments(x_prev, x)
-            t_fit = median_time(lambda: penfree.fit_step(x_prev, x, out=out), args.repeats)
-            t_fast = median_time(lambda: penfree.fit_step(x_prev, x, out=out, evaluate=False), args.repeats)
+            (t_fit, t_fast), t_floor, (r_fit, r_fast) = rounds_against(
+                lambda: np.add(x_prev, x, out=out),
+                [lambda: penfree.fit_step(x_prev, x, out=out), lambda: penfree.fit_step(x_prev, x, out=out, evaluate=False)],
+                args.repeats, args.rounds)
             build, K.FIT_BUILD = K.FIT_BUILD, "serial"  # serial kernels
             try:
                 t_ser = median_time(lambda: penfree.fit_step(x_prev, x, out=out), args.repeats)
@@ -158,13 +186,12 @@ def main(argv=None):
             t_mom = median_time(lambda: fit_moments(x_prev, x, validate=False), args.repeats)
             t_app = median_time(lambda: apply_map(x, r.D, r.u, r.c, out=out, x_prev=x_prev), args.repeats)
             t_ls = median_time(lambda: lstsq_step(x_prev, x), max(5, args.repeats // 3))
-            t_floor = median_time(lambda: np.add(x_prev, x, out=buf), args.repeats)
             ref = lstsq_step(x_prev.astype(np.float64), x.astype(np.float64))
             dev = np.abs(r.x_def.astype(np.float64) - ref).max()
             print(f"{name:<7} {np.dtype(dtype).name:<8} {t_fit*1e3:8.3f}ms {t_fast*1e3:7.3f}ms {t_ser*1e3:7.3f}ms "
                   f"{t_mom*1e3:7.3f}ms "
                   f"{t_app*1e3:7.3f}ms {t_ls*1e3:8.3f}ms {t_floor*1e3:7.3f}ms {t_ls/t_fit:9.1f}x "
-                  f"{t_fit/t_floor:9.2f}x {t_fast/t_floor:13.2f}x  "
+                  f"{ratio_text(r_fit):>20} {ratio_text(r_fast):>23}  "
                   f"{r.model}/{r.projection}/{r.rank}/{r.certified_by} |x_def-lstsq|max={dev:.1e}")
             del m
         print(f"        (scene: {source})")

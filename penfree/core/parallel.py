@@ -25,6 +25,7 @@ between their two builds from the measured cost of each instead.
 
 from __future__ import annotations
 
+import math
 import time
 import types
 
@@ -132,6 +133,19 @@ def parallel_kernel(fn, name, min_work=PARALLEL_MIN_WORK, **jit_options):
     return _Dual(fn, name, min_work, jit_options)
 
 
+def _specialisations(kernel) -> int:
+    """How many type specialisations a Numba dispatcher holds (0 for a plain function)."""
+    return len(getattr(kernel, "overloads", ()))
+
+
+def _lower_or_towards(cost, sample, alpha):
+    """A cost estimate after one more `sample`: a lower sample at once (timing noise only
+    adds), a higher one by `alpha` of the way (a lasting slow-down shows over calls)."""
+    if cost is None or sample < cost:
+        return sample
+    return cost + alpha * (sample - cost)
+
+
 class Pace:
     """Serial or parallel build of one kernel, whichever costs less per item lately.
 
@@ -142,15 +156,27 @@ class Pace:
     stalled lately (an average of 0 / 1, weight `STALL_WEIGHT` a call). Where another
     process holds one of two cores, a parallel call stalls for a scheduler time slice
     (~20 ms, 100x its usual cost, issue 13) now and then: its median stays 1.6x below
-    the serial build's while its mean is above it. The cheaper build runs; the other
+    the serial build's while its mean is above it. A call is a stall only if it is also
+    `STALL_MIN_S` over its usual time: waking threads that slept through a few
+    milliseconds of serial calls costs ~0.2 ms (measured), and that is not a late
+    thread. The cheaper build runs; the other
     one every `PROBE_EVERY` calls times the ratio of their costs (at most
     `PROBE_SPREAD`: a probe of a build that stalls may cost a stall), and a probe,
     standing for the calls since the last, weighs `PROBE_WEIGHT` in the stall share.
     So two stalled calls move the choice to serial, and two or three calm probes in a
     row back (a few hundred calls). The first call of each build is not measured (thread
-    start-up, the cache load). Both builds give the same bits, so the choice changes
-    only the time; ``build`` forces one (``"serial"`` or ``"parallel"``, for the
-    tests' oracles and the benchmarks).
+    start-up), nor any call that compiled or loaded a specialisation of the build (a new
+    input dtype: milliseconds, once), and each is measured `FIRST_SAMPLES` times before any
+    choice, the serial build first (so that the parallel samples follow one another).
+    Noise only ever adds time, so a call cheaper than a build's usual cost replaces it
+    at once (the average moves only upwards). A parallel call that starts `COLD_GAP_S`
+    or more after the last one (a probe, after serial calls) also pays for waking the
+    threads, which calls in a row do not: it only ever lowers the usual cost. Else one
+    slow early call (a cold cache, 3x the usual) or one call after a pause would keep
+    the serial build for hundreds of calls, or for good: its probes would all be cold.
+    Both builds give the same bits, so the choice changes only the time; ``build``
+    forces one (``"serial"`` or ``"parallel"``, for the tests' oracles and the
+    benchmarks).
 
     Examples
     --------
@@ -165,13 +191,17 @@ class Pace:
     STALL_WEIGHT = 1.0 / 8.0
     PROBE_WEIGHT = 0.5
     STALL_FACTOR = 4.0
+    STALL_MIN_S = 5e-4
+    COLD_GAP_S = 2e-3
+    FIRST_SAMPLES = 2
+    _last_parallel_end = -math.inf  # of any Pace's parallel call: the threads are shared
 
     def __init__(self):
         self.serial = None  # seconds per item
         self.usual = None  # parallel, calls that did not stall
         self.slow = 0.0  # parallel, calls that stalled
         self.stalls = 0.0  # recent share of parallel calls that stalled
-        self.seen = [False, False]
+        self.seen = [0, 0]  # calls of each build so far (the first is not measured)
         self.calls = 0
         self.since = 0  # calls since the last probe
         self.probing = False
@@ -184,10 +214,10 @@ class Pace:
         """True to run the parallel build next (both are measured before any choice)."""
         self.calls += 1
         self.probing = False
-        if self.usual is None:
-            return True
-        if self.serial is None:
+        if self.seen[0] <= self.FIRST_SAMPLES:
             return False
+        if self.seen[1] <= self.FIRST_SAMPLES:
+            return True
         par, ser = self.parallel_cost(), self.serial
         best = par <= ser
         # Probe the other build after PROBE_EVERY calls, times how much dearer it looked
@@ -199,22 +229,25 @@ class Pace:
             self.since = 0
         return best != self.probing
 
-    def record(self, parallel: bool, seconds: float, work: int) -> None:
+    def record(self, parallel: bool, seconds: float, work: int, warm: bool = True) -> None:
+        """One call's wall time; `warm`: a parallel call soon after another one."""
         b = int(parallel)
-        if not self.seen[b]:
-            self.seen[b] = True
+        self.seen[b] += 1
+        if self.seen[b] == 1:
             return
         per = seconds / max(work, 1)
         if not parallel:
-            self.serial = per if self.serial is None else self.serial + self.ALPHA * (per - self.serial)
+            self.serial = _lower_or_towards(self.serial, per, self.ALPHA)
         elif self.usual is None:
             self.usual = per
         else:
-            stalled = per > self.STALL_FACTOR * self.usual
+            stalled = per > self.STALL_FACTOR * self.usual and seconds - self.usual * work > self.STALL_MIN_S
             if stalled:
                 self.slow = per if self.slow == 0.0 else self.slow + self.ALPHA * (per - self.slow)
+            elif not warm:
+                self.usual = min(self.usual, per)
             else:
-                self.usual += self.ALPHA * (per - self.usual)
+                self.usual = _lower_or_towards(self.usual, per, self.ALPHA)
             # A probe stands for the many calls since the last one: it weighs more.
             weight = self.PROBE_WEIGHT if self.probing else self.STALL_WEIGHT
             self.stalls += weight * (float(stalled) - self.stalls)
@@ -224,8 +257,14 @@ class Pace:
         if build != "adaptive" or thread_count() == 1:
             return (parallel if build == "parallel" else serial)(*args)
         par = self.pick()
+        kernel = parallel if par else serial
+        known = _specialisations(kernel)
         t = time.perf_counter()
         try:
-            return (parallel if par else serial)(*args)
+            return kernel(*args)
         finally:
-            self.record(par, time.perf_counter() - t, work)
+            end = time.perf_counter()
+            if _specialisations(kernel) == known:
+                self.record(par, end - t, work, t - Pace._last_parallel_end < self.COLD_GAP_S)
+            if par:
+                Pace._last_parallel_end = end

@@ -240,19 +240,14 @@ def _slopes_kernel(G, E, lam, keep):
     return D
 
 
-def _apply_py(x_prev, x, D, u, c, out, evaluate, out32, n_chunks):
-    # x_def = x + D (x - c) + u in float64, then cast on store. With
-    # `evaluate`, also residual sums of the *stored* x_def (its float32
-    # rounding when `out32`) and of x against x_pred = 2x - x_prev, formed as
-    # d - (x_def - x) to keep far-from-origin digits. Never reads `out` back,
-    # so the loop carries no memory dependence through it.
-    # Flat (3N,) views and an unsigned index, as in _moments_py.
+def _apply_py(x_prev, x, D, u, c, out, evaluate, n_chunks):
+    # x_def = x + D (x - c) + u in float64, then cast on store. With `evaluate`, also
+    # residual sums of x_def and of x against x_pred = 2x - x_prev (float64 x_def:
+    # the stored values are v exactly). Never reads `out` back, so the loop carries no
+    # memory dependence through it. float32 x_def with the summaries is
+    # `_apply_blocked_py`. Flat (3N,) views and an unsigned index, as in _moments_py.
     n = x.shape[0] // 3
-    d00, d01, d02 = D[0, 0], D[0, 1], D[0, 2]
-    d10, d11, d12 = D[1, 0], D[1, 1], D[1, 2]
-    d20, d21, d22 = D[2, 0], D[2, 1], D[2, 2]
-    u0, u1, u2 = u[0], u[1], u[2]
-    c0, c1, c2 = c[0], c[1], c[2]
+    m = _map_constants(D, u, c)
     part = np.zeros((n_chunks, 4))
     for k in prange(n_chunks):
         lo = k * n // n_chunks
@@ -260,31 +255,16 @@ def _apply_py(x_prev, x, D, u, c, out, evaluate, out32, n_chunks):
         s_def = s_base = 0.0
         m_def = m_base = np.uint64(0)
         for j in range(hi - lo):
-            i = np.uint64(lo + j)
-            i3 = np.uint64(3) * i
+            i3 = np.uint64(3) * np.uint64(lo + j)
             a0 = np.float64(x[i3])
             a1 = np.float64(x[i3 + np.uint64(1)])
             a2 = np.float64(x[i3 + np.uint64(2)])
-            p0, p1, p2 = a0 - c0, a1 - c1, a2 - c2
-            v0 = a0 + (d00 * p0 + d01 * p1 + d02 * p2 + u0)
-            v1 = a1 + (d10 * p0 + d11 * p1 + d12 * p2 + u1)
-            v2 = a2 + (d20 * p0 + d21 * p1 + d22 * p2 + u2)
+            v0, v1, v2 = _map_vertex(a0, a1, a2, m)
             out[i3] = v0
             out[i3 + np.uint64(1)] = v1
             out[i3 + np.uint64(2)] = v2
             if evaluate:
-                if out32:
-                    v0 = np.float64(np.float32(v0))
-                    v1 = np.float64(np.float32(v1))
-                    v2 = np.float64(np.float32(v2))
-                q0 = a0 - np.float64(x_prev[i3])
-                q1 = a1 - np.float64(x_prev[i3 + np.uint64(1)])
-                q2 = a2 - np.float64(x_prev[i3 + np.uint64(2)])
-                e0 = q0 - (v0 - a0)
-                e1 = q1 - (v1 - a1)
-                e2 = q2 - (v2 - a2)
-                ed = e0 * e0 + e1 * e1 + e2 * e2
-                eb = q0 * q0 + q1 * q1 + q2 * q2
+                ed, eb = _residuals(x_prev, i3, a0, a1, a2, v0, v1, v2)
                 s_def += ed
                 s_base += eb
                 # Maxima of the bit patterns: for non-negative floats the unsigned
@@ -294,30 +274,118 @@ def _apply_py(x_prev, x, D, u, c, out, evaluate, out32, n_chunks):
                 # that assume finite values (about 4x for this loop).
                 m_def = max(m_def, np.float64(ed).view(np.uint64))
                 m_base = max(m_base, np.float64(eb).view(np.uint64))
-        part[k, 0], part[k, 2] = s_def, s_base
-        part[k, 1], part[k, 3] = np.uint64(m_def).view(np.float64), np.uint64(m_base).view(np.float64)
+        part[k, 0], part[k, 1], part[k, 2], part[k, 3] = s_def, _as_float(m_def), s_base, _as_float(m_base)
+    return _chunk_summaries(part)
+
+
+#: Vertices per block of `_apply_blocked_py`.
+_APPLY_BLOCK = 256
+
+
+def _apply_blocked_py(x_prev, x, D, u, c, out, n_chunks):
+    # `_apply_py` with the summaries, for a float32 x_def. Per block of _APPLY_BLOCK
+    # vertices: the map alone (float32 in and out: LLVM vectorises it 8 wide), then the
+    # residuals of the x_def just stored (read back: the summaries see its rounding)
+    # into the chunk's scratch, then their sums. In one loop the float64 sums hold LLVM
+    # to 4 wide, and de-interleaving xyz and converting to float64 bound it (1.2x slower).
+    n = x.shape[0] // 3
+    m = _map_constants(D, u, c)
+    part = np.zeros((n_chunks, 4))
+    block = min(_APPLY_BLOCK, n // n_chunks + 1)
+    scratch = np.empty((n_chunks, 2, block))
+    for k in prange(n_chunks):
+        lo = k * n // n_chunks
+        hi = (k + 1) * n // n_chunks
+        res = scratch[k]
+        s_def = s_base = 0.0
+        m_def = m_base = np.uint64(0)
+        for b0 in range(lo, hi, block):
+            nb = min(block, hi - b0)
+            for j in range(nb):
+                i3 = np.uint64(3) * np.uint64(b0 + j)
+                v0, v1, v2 = _map_vertex(np.float64(x[i3]), np.float64(x[i3 + np.uint64(1)]),
+                                         np.float64(x[i3 + np.uint64(2)]), m)
+                out[i3] = v0
+                out[i3 + np.uint64(1)] = v1
+                out[i3 + np.uint64(2)] = v2
+            for j in range(nb):
+                i3 = np.uint64(3) * np.uint64(b0 + j)
+                res[0, j], res[1, j] = _residuals(
+                    x_prev, i3, np.float64(x[i3]), np.float64(x[i3 + np.uint64(1)]), np.float64(x[i3 + np.uint64(2)]),
+                    np.float64(out[i3]), np.float64(out[i3 + np.uint64(1)]), np.float64(out[i3 + np.uint64(2)]))
+            for j in range(nb):
+                s_def += res[0, j]
+                s_base += res[1, j]
+                m_def = max(m_def, np.float64(res[0, j]).view(np.uint64))  # as in _apply_py
+                m_base = max(m_base, np.float64(res[1, j]).view(np.uint64))
+        part[k, 0], part[k, 1], part[k, 2], part[k, 3] = s_def, _as_float(m_def), s_base, _as_float(m_base)
+    return _chunk_summaries(part)
+
+
+@njit(cache=True, inline="always")
+def _map_constants(D, u, c):
+    """D (row-major), u and c as one tuple of scalars: loop invariants LLVM keeps in registers."""
+    return (D[0, 0], D[0, 1], D[0, 2], D[1, 0], D[1, 1], D[1, 2], D[2, 0], D[2, 1], D[2, 2],
+            u[0], u[1], u[2], c[0], c[1], c[2])
+
+
+@njit(cache=True, inline="always")
+def _map_vertex(a0, a1, a2, m):
+    """``a + D (a - c) + u`` at one vertex ``a``, with `m` from `_map_constants`."""
+    p0, p1, p2 = a0 - m[12], a1 - m[13], a2 - m[14]
+    return (a0 + (m[0] * p0 + m[1] * p1 + m[2] * p2 + m[9]),
+            a1 + (m[3] * p0 + m[4] * p1 + m[5] * p2 + m[10]),
+            a2 + (m[6] * p0 + m[7] * p1 + m[8] * p2 + m[11]))
+
+
+@njit(cache=True, inline="always")
+def _residuals(x_prev, i3, a0, a1, a2, v0, v1, v2):
+    """Squared distances of x_def = v and of x = a to x_pred = 2a - x_prev at vertex
+    ``i3 / 3``, the displacement formed as ``d - (v - a)`` to keep far-from-origin digits."""
+    q0 = a0 - np.float64(x_prev[i3])
+    q1 = a1 - np.float64(x_prev[i3 + np.uint64(1)])
+    q2 = a2 - np.float64(x_prev[i3 + np.uint64(2)])
+    e0 = q0 - (v0 - a0)
+    e1 = q1 - (v1 - a1)
+    e2 = q2 - (v2 - a2)
+    return e0 * e0 + e1 * e1 + e2 * e2, q0 * q0 + q1 * q1 + q2 * q2
+
+
+@njit(cache=True, inline="always")
+def _as_float(bits):
+    return np.uint64(bits).view(np.float64)
+
+
+@njit(cache=True)
+def _chunk_summaries(part):
+    """The chunks' partial sums in chunk order, and their maxima (bit patterns, as above)."""
     res = np.zeros(4)
     m_def = m_base = np.uint64(0)
-    for k in range(n_chunks):
+    for k in range(part.shape[0]):
         res[0] += part[k, 0]
         res[2] += part[k, 2]
         m_def = max(m_def, np.float64(part[k, 1]).view(np.uint64))
         m_base = max(m_base, np.float64(part[k, 3]).view(np.uint64))
-    res[1], res[3] = np.uint64(m_def).view(np.float64), np.uint64(m_base).view(np.float64)
+    res[1], res[3] = _as_float(m_def), _as_float(m_base)
     return res
 
 
 _apply_serial = njit(cache=True, fastmath=_FIT_FASTMATH)(named(_apply_py, "_apply_serial"))
 _apply_parallel = njit(cache=True, parallel=True, fastmath=_FIT_FASTMATH)(named(_apply_py, "_apply_parallel"))
+_apply_blocked_serial = njit(cache=True, fastmath=_FIT_FASTMATH)(named(_apply_blocked_py, "_apply_blocked_serial"))
+_apply_blocked_parallel = njit(cache=True, parallel=True, fastmath=_FIT_FASTMATH)(
+    named(_apply_blocked_py, "_apply_blocked_parallel"))
 
-
-_APPLY_PACE = (Pace(), Pace())  # without and with the residual summaries: different costs
+# Without the summaries, with them, and with them for float32: different costs.
+_APPLY_PACE = (Pace(), Pace(), Pace())
 
 
 def _apply_kernel(x_prev, x, D, u, c, out, evaluate, n_chunks):
-    out32 = out.dtype == np.float32
+    flat = (x_prev.reshape(-1), x.reshape(-1), D, u, c, out.reshape(-1))
+    if evaluate and out.dtype == np.float32:
+        return fit_build(x.shape[0], _APPLY_PACE[2], _apply_blocked_serial, _apply_blocked_parallel, *flat, n_chunks)
     return fit_build(x.shape[0], _APPLY_PACE[bool(evaluate)], _apply_serial, _apply_parallel,
-                     x_prev.reshape(-1), x.reshape(-1), D, u, c, out.reshape(-1), evaluate, out32, n_chunks)
+                     *flat, evaluate, n_chunks)
 
 
 @njit(cache=True)
