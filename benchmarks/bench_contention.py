@@ -2,10 +2,11 @@
 
 One process measures, for float32 and float64: ``fit_step`` as dispatched (the
 default: `constants.FIT_BUILD`, "adaptive", `penfree.core.parallel.Pace`), with the serial
-kernels forced and with the parallel kernels forced, and the
-memory floor (one ``np.add(x_prev, x, out=buf)`` pass); first on the machine as it is
-("idle"), then with a background busy process spinning on one core ("loaded"). Ratios
-are formed within one condition (fit / floor) and across the two (loaded / idle).
+kernels forced and with the parallel kernels forced, and the memory floor (one
+``np.add(x_prev, x, out=buf)`` pass, `buf` 64-byte aligned as in `bench_fit.py`); first on
+the machine as it is ("idle"), then with a background busy process spinning on one core
+("loaded"). Ratios are formed within one condition (fit / floor) and across the two
+(loaded / idle).
 
     .venv/bin/python benchmarks/bench_contention.py [--repeats 200] [--vertices 65536] [--busy 1]
 
@@ -26,7 +27,7 @@ import numpy as np
 import penfree
 from penfree import constants as K
 
-from bench_fit import reference_or_own, timings
+from bench_fit import aligned_empty_like, reference_or_own, timings
 
 
 def median_time(fn, repeats):
@@ -50,7 +51,7 @@ def variants(x_prev, x, out, repeats):
             res[name] = median_time(lambda: penfree.fit_step(x_prev, x, out=out), repeats)
         finally:
             K.FIT_BUILD = default
-    buf = np.empty_like(x)
+    buf = aligned_empty_like(x)
     res["floor"] = median_time(lambda: np.add(x_prev, x, out=buf), repeats)
     return res
 
