@@ -76,6 +76,20 @@ def _paced(pace, costs, calls):
     return chosen
 
 
+def _by_parallel_call(serial, cost_of_call):
+    """`costs(parallel, call)` for `_paced`: `serial` for the serial build, and
+    ``cost_of_call(k)`` for the k-th call of the parallel build (from 1)."""
+    count = [0]
+
+    def costs(par, c):
+        if not par:
+            return serial
+        count[0] += 1
+        return cost_of_call(count[0])
+
+    return costs
+
+
 def test_pace_measures_both_builds_then_runs_the_cheaper_and_probes_the_other():
     pace = parallel.Pace()
     chosen = _paced(pace, lambda par, c: 1.0 if par else 3.0, 1000)
@@ -93,15 +107,7 @@ def test_pace_one_cold_early_call_does_not_keep_the_slower_build():
     # second sample replaces it (noise only adds time), so the parallel build runs from
     # the first choice on, not after the probes have averaged the outlier away.
     pace = parallel.Pace()
-    par_calls = [0]
-
-    def costs(par, c):
-        if not par:
-            return 1.7
-        par_calls[0] += 1
-        return 3.0 if par_calls[0] == 2 else 1.0
-
-    chosen = _paced(pace, costs, 200)
+    chosen = _paced(pace, _by_parallel_call(1.7, lambda k: 3.0 if k == 2 else 1.0), 200)
     assert pace.usual == 1.0
     assert all(chosen[6:6 + 3 * parallel.Pace.PROBE_EVERY // 2])
     assert sum(chosen[6:]) > 0.97 * (200 - 6)
@@ -201,14 +207,7 @@ def test_pace_rare_long_stalls_choose_serial():
     # serial build's 1.6 though its median is not. The calls' mean cost stays near the
     # serial build's, well below the parallel one's.
     pace = parallel.Pace()
-    seen = [0]
-
-    def costs(par, c):
-        if not par:
-            return 1.6
-        seen[0] += 1
-        return 60.0 if seen[0] % 30 == 0 else 1.0
-
+    costs = _by_parallel_call(1.6, lambda k: 60.0 if k % 30 == 0 else 1.0)
     spent = []
     for c in range(20000):
         par = pace.pick()
