@@ -37,6 +37,8 @@ from .frames import StoredFrames
 H5_MAGIC = b"\x89HDF\r\n\x1a\n"
 #: Attributes with a meaning of their own; everything else is carried in ``Sequence.attrs``.
 RESERVED_ATTRS = ("penfree_format", "dt", "thickness", "contact_radius", "source")
+
+
 def has_h5_magic(path) -> bool:
     try:
         with open(path, "rb") as fh:
