@@ -175,23 +175,25 @@ def fit_step(x_prev, x, *, weights=None, model="affine", projection="auto", marg
         # The default call, in one kernel call after the moments; when the fast test
         # certifies the map and it is no farther from x_pred than the translation, this
         # is what `_fit_general` gives, bit for bit.
-        m, D, A, bound, rank, gain, b = _fit.fit_affine_fast(x_prev, x, w)
+        f, eps, D, A, bound, rank, gain, b = _fit.fit_affine_fast(x_prev, x, w)
         if bound > margin and not gain > 0.0 and certify_map(A, margin):  # the one gate, as always
             used = fitted = "affine"
-            u, mode, fallback, how = m.u.copy(), "none", "", "fast"
+            u, c, mode, fallback, how = f[4:7].copy(), f[1:4].copy(), "none", "", "fast"
+        else:
+            m = _fit.as_moments(f, x.shape[0], eps)
     else:
         m = _fit.fit_moments(x_prev, x, w, validate=False)
     if used is None:
         used, mode, A, D, u, bound, how, rank, fallback, fitted = _fit_general(m, model, projection, margin)
-        D, u = np.ascontiguousarray(D, dtype=np.float64), np.ascontiguousarray(u, dtype=np.float64)
-        b = _offset_kernel(D, u, m.c)
+        D, u, c = np.ascontiguousarray(D, dtype=np.float64), np.ascontiguousarray(u, dtype=np.float64), m.c.copy()
+        b = _offset_kernel(D, u, c)
 
-    x_def, stats = _fit.apply_map(x, D, u, m.c, out=out, x_prev=x_prev if evaluate else None, checked=True)
+    x_def, stats = _fit.apply_map(x, D, u, c, out=out, x_prev=x_prev if evaluate else None, checked=True)
     if stats is None:
         stats = dict.fromkeys(("residual_pred_rms", "residual_pred_max", "baseline_pred_rms",
                                "baseline_pred_max"), math.nan)
     return StepResult(
-        A=A, b=b, x_def=x_def, D=D, u=u, c=m.c.copy(), model=used, projection=mode,
+        A=A, b=b, x_def=x_def, D=D, u=u, c=c, model=used, projection=mode,
         certificate_margin=float(bound), rank=int(rank), **stats,
         time_fit_s=time.perf_counter() - t0, model_fitted=fitted, fallback=fallback,
         certified_by=how,
