@@ -8,9 +8,10 @@ process-wide setting (``NUMBA_CPU_FEATURES``) would change every Numba user's co
 
 `wide` marks one dispatcher. While it compiles, the LLVM functions of its own code and
 of its ``prange`` bodies (Numba's parfor gufuncs, compiled inside it) get the function
-attribute ``"prefer-vector-width"="512"``; no other function does, and Numba's own
-overloads compiled on the way keep the default. The compiled code is cached as any
-other kernel's.
+attribute ``"prefer-vector-width"="512"``. Numba's own overloads compiled on the way,
+and the other kernels, keep the default (only the ``prange`` bodies of a kernel that a
+marked one calls, if it were compiled on the way, would be wide too: the fit's kernels
+call none). The compiled code is cached as any other kernel's.
 
 - The arithmetic is the same. Under the fit's ``reassoc`` flag a sum is split over more
   lanes, so its last bits depend on the width, as they already depend on the CPU;
