@@ -245,14 +245,18 @@ def _slopes_kernel(G, E, lam, keep):
 
 def _apply_py(x_prev, x, D, u, c, out, evaluate, n_chunks):
     # x_def = x + D (x - c) + u in float64, then cast on store. With `evaluate`, also
-    # residual sums of x_def and of x against x_pred = 2x - x_prev, of x_def as stored
-    # (cast to out's dtype and back: a float32 x_def's summaries see its rounding; for
-    # float64 the casts are no-ops). Never reads `out` back, so the loop carries no
-    # memory dependence through it. Flat (3N,) views and an unsigned index, as in
-    # _moments_py.
+    # residual sums of the *stored* x_def (cast to out's dtype and back: a float32 x_def's
+    # summaries see its rounding; for float64 the casts are no-ops) and of x against
+    # x_pred = 2x - x_prev, formed as d - (x_def - x) to keep far-from-origin digits.
+    # Never reads `out` back, so the loop carries no memory dependence through it.
+    # Flat (3N,) views and an unsigned index, as in _moments_py.
     n = x.shape[0] // 3
-    m = _map_constants(D, u, c)
     store = out.dtype.type
+    d00, d01, d02 = D[0, 0], D[0, 1], D[0, 2]
+    d10, d11, d12 = D[1, 0], D[1, 1], D[1, 2]
+    d20, d21, d22 = D[2, 0], D[2, 1], D[2, 2]
+    u0, u1, u2 = u[0], u[1], u[2]
+    c0, c1, c2 = c[0], c[1], c[2]
     part = np.zeros((n_chunks, 4))
     for k in prange(n_chunks):
         lo = k * n // n_chunks
@@ -260,17 +264,27 @@ def _apply_py(x_prev, x, D, u, c, out, evaluate, n_chunks):
         s_def = s_base = 0.0
         m_def = m_base = np.uint64(0)
         for j in range(hi - lo):
-            i3 = np.uint64(3) * np.uint64(lo + j)
+            i = np.uint64(lo + j)
+            i3 = np.uint64(3) * i
             a0 = np.float64(x[i3])
             a1 = np.float64(x[i3 + np.uint64(1)])
             a2 = np.float64(x[i3 + np.uint64(2)])
-            v0, v1, v2 = _map_vertex(a0, a1, a2, m)
-            w0, w1, w2 = store(v0), store(v1), store(v2)
+            p0, p1, p2 = a0 - c0, a1 - c1, a2 - c2
+            w0 = store(a0 + (d00 * p0 + d01 * p1 + d02 * p2 + u0))
+            w1 = store(a1 + (d10 * p0 + d11 * p1 + d12 * p2 + u1))
+            w2 = store(a2 + (d20 * p0 + d21 * p1 + d22 * p2 + u2))
             out[i3] = w0
             out[i3 + np.uint64(1)] = w1
             out[i3 + np.uint64(2)] = w2
             if evaluate:
-                ed, eb = _residuals(x_prev, i3, a0, a1, a2, np.float64(w0), np.float64(w1), np.float64(w2))
+                q0 = a0 - np.float64(x_prev[i3])
+                q1 = a1 - np.float64(x_prev[i3 + np.uint64(1)])
+                q2 = a2 - np.float64(x_prev[i3 + np.uint64(2)])
+                e0 = q0 - (np.float64(w0) - a0)
+                e1 = q1 - (np.float64(w1) - a1)
+                e2 = q2 - (np.float64(w2) - a2)
+                ed = e0 * e0 + e1 * e1 + e2 * e2
+                eb = q0 * q0 + q1 * q1 + q2 * q2
                 s_def += ed
                 s_base += eb
                 # Maxima of the bit patterns: for non-negative floats the unsigned
@@ -280,55 +294,16 @@ def _apply_py(x_prev, x, D, u, c, out, evaluate, n_chunks):
                 # that assume finite values (about 4x for this loop).
                 m_def = max(m_def, np.float64(ed).view(np.uint64))
                 m_base = max(m_base, np.float64(eb).view(np.uint64))
-        part[k, 0], part[k, 1], part[k, 2], part[k, 3] = s_def, _as_float(m_def), s_base, _as_float(m_base)
-    return _chunk_summaries(part)
-
-
-@njit(cache=True, inline="always")
-def _map_constants(D, u, c):
-    """D (row-major), u and c as one tuple of scalars: loop invariants LLVM keeps in registers."""
-    return (D[0, 0], D[0, 1], D[0, 2], D[1, 0], D[1, 1], D[1, 2], D[2, 0], D[2, 1], D[2, 2],
-            u[0], u[1], u[2], c[0], c[1], c[2])
-
-
-@njit(cache=True, inline="always")
-def _map_vertex(a0, a1, a2, m):
-    """``a + D (a - c) + u`` at one vertex ``a``, with `m` from `_map_constants`."""
-    p0, p1, p2 = a0 - m[12], a1 - m[13], a2 - m[14]
-    return (a0 + (m[0] * p0 + m[1] * p1 + m[2] * p2 + m[9]),
-            a1 + (m[3] * p0 + m[4] * p1 + m[5] * p2 + m[10]),
-            a2 + (m[6] * p0 + m[7] * p1 + m[8] * p2 + m[11]))
-
-
-@njit(cache=True, inline="always")
-def _residuals(x_prev, i3, a0, a1, a2, v0, v1, v2):
-    """Squared distances of x_def = v and of x = a to x_pred = 2a - x_prev at vertex
-    ``i3 / 3``, the displacement formed as ``d - (v - a)`` to keep far-from-origin digits."""
-    q0 = a0 - np.float64(x_prev[i3])
-    q1 = a1 - np.float64(x_prev[i3 + np.uint64(1)])
-    q2 = a2 - np.float64(x_prev[i3 + np.uint64(2)])
-    e0 = q0 - (v0 - a0)
-    e1 = q1 - (v1 - a1)
-    e2 = q2 - (v2 - a2)
-    return e0 * e0 + e1 * e1 + e2 * e2, q0 * q0 + q1 * q1 + q2 * q2
-
-
-@njit(cache=True, inline="always")
-def _as_float(bits):
-    return np.uint64(bits).view(np.float64)
-
-
-@njit(cache=True)
-def _chunk_summaries(part):
-    """The chunks' partial sums in chunk order, and their maxima (bit patterns, as above)."""
+        part[k, 0], part[k, 2] = s_def, s_base
+        part[k, 1], part[k, 3] = np.uint64(m_def).view(np.float64), np.uint64(m_base).view(np.float64)
     res = np.zeros(4)
     m_def = m_base = np.uint64(0)
-    for k in range(part.shape[0]):
+    for k in range(n_chunks):
         res[0] += part[k, 0]
         res[2] += part[k, 2]
         m_def = max(m_def, np.float64(part[k, 1]).view(np.uint64))
         m_base = max(m_base, np.float64(part[k, 3]).view(np.uint64))
-    res[1], res[3] = _as_float(m_def), _as_float(m_base)
+    res[1], res[3] = np.uint64(m_def).view(np.float64), np.uint64(m_base).view(np.float64)
     return res
 
 

@@ -173,9 +173,10 @@ def fit_affine_fast(x_prev, x, weights):
     One moment pass and one small kernel (`kernels._affine_step_kernel`): the same
     values, bit for bit, as `fit_moments`, `fit_affine`, ``A = I + D`` (and ``D = A - I``
     back), `fast_margin_bound(A)` and `residual_gain`, without their Python calls.
-    Inputs as validated by `fit_step`. Returns ``(f, eps, D, A, fast_bound, rank, gain,
-    b)``, where ``as_moments(f, N, eps)`` is `fit_moments`' result (built only when
-    needed: 2 us of a 0.1 ms call); raises like `fit_moments` on non-finite input.
+    Inputs as validated by `fit_step`. Returns ``(f, eps, c, u, D, A, fast_bound, rank,
+    gain, b)``, where ``as_moments(f, N, eps)`` is `fit_moments`' result (built only when
+    needed: 2 us of a 0.1 ms call) and `c`, `u` are copies of its ``c`` and ``u``;
+    raises like `fit_moments` on non-finite input.
     """
     tot = _moments_kernel(x_prev, x, weights, K.REDUCTION_CHUNKS)
     eps = input_eps(x_prev, x)
@@ -184,7 +185,7 @@ def fit_affine_fast(x_prev, x, weights):
         K.PINV_RTOL_FLOOR, K.FIT_NOISE_SLOPE_TOL, FAST_BOUND_ALLOWANCE)
     if not finite:
         _non_finite(x_prev, x)
-    return f, eps, D, A, float(fb), int(rank), float(gain), b
+    return f, eps, f[1:4].copy(), f[4:7].copy(), D, A, float(fb), int(rank), float(gain), b
 
 
 # --- rank: the noise-aware cut-off -------------------------------------------

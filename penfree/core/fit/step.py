@@ -175,10 +175,10 @@ def fit_step(x_prev, x, *, weights=None, model="affine", projection="auto", marg
         # The default call, in one kernel call after the moments; when the fast test
         # certifies the map and it is no farther from x_pred than the translation, this
         # is what `_fit_general` gives, bit for bit.
-        f, eps, D, A, bound, rank, gain, b = _fit.fit_affine_fast(x_prev, x, w)
+        f, eps, c, u, D, A, bound, rank, gain, b = _fit.fit_affine_fast(x_prev, x, w)
         if bound > margin and not gain > 0.0 and certify_map(A, margin):  # the one gate, as always
             used = fitted = "affine"
-            u, c, mode, fallback, how = f[4:7].copy(), f[1:4].copy(), "none", "", "fast"
+            mode, fallback, how = "none", "", "fast"
         else:
             m = _fit.as_moments(f, x.shape[0], eps)
     else:
