@@ -56,7 +56,11 @@ def test_the_marked_loops_use_512_bit_registers(parallel):
     x = np.ones(4096, dtype=np.float32)
     wide_k(x, 4), plain(x, 4)
     assert "zmm" in wide_k.inspect_asm(wide_k.signatures[0])
-    assert "zmm" not in plain.inspect_asm(plain.signatures[0])
+    if "zmm" in plain.inspect_asm(plain.signatures[0]):
+        # LLVM already prefers 512-bit vectors on this CPU (AMD Zen 4 does; Intel's
+        # AVX-512 cores prefer 256): the mark changes nothing here, and the check above
+        # proves nothing. That no attribute leaks is checked on every host (above).
+        pytest.skip(f"LLVM's default vector width for {llvm.get_host_cpu_name()} is already 512 bits")
 
 
 def test_the_fit_passes_that_gain_are_marked():

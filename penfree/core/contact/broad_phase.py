@@ -229,39 +229,57 @@ _PRUNE_SLACK = 1e-9
 _PRUNE_REL = 1.0 - 1e-9
 
 
-def _boxes_py(V_t0, V_t1, T, inflation, lo, hi):
-    # Each box writes its own rows: both builds give the same bits. Memory-bound,
-    # ~1 ms at 200K primitives serially; below PARALLEL_MIN_WORK boxes the serial
-    # build runs (a parallel launch would cost more on a loaded machine).
+def _boxes_py(V_t0, V_t1, T, inflation, lo, hi, corners):
+    # Chunk c of corners.shape[0] makes the boxes [c m / C, (c + 1) m / C) and keeps their
+    # bounding corners as `_corners_py` does (`_box_arrays`' corners, which `_Plan` would
+    # otherwise read the boxes again for). Each box writes its own rows and min / max are
+    # exact: both builds give the same bits. Memory-bound, ~1 ms at 200K primitives
+    # serially; below PARALLEL_MIN_WORK boxes the serial build runs (a parallel launch
+    # would cost more on a loaded machine).
     # A NaN or infinite coordinate makes its box NaN (min and max would pass a NaN
     # by; the sum of the coordinates does not, nor does it overflow below ~1e307):
     # `_box_corners` refuses it before any grid is sized.
-    for i in prange(T.shape[0]):
-        acc = 0.0
+    m = T.shape[0]
+    C = corners.shape[0]
+    for c in prange(C):
         for a in range(3):
-            mn = np.inf
-            mx = -np.inf
-            for c in range(T.shape[1]):
-                v = T[i, c]
-                p = V_t0[v, a]
-                q = V_t1[v, a]
-                mn = min(mn, p, q)
-                mx = max(mx, p, q)
-                acc += p + q
-            lo[i, a] = mn - inflation
-            hi[i, a] = mx + inflation
-        if not (acc - acc == 0.0):
-            lo[i, 0] = np.nan
+            corners[c, 0, a] = np.inf
+            corners[c, 1, a] = -np.inf
+        bad = 0.0
+        for i in range(c * m // C, (c + 1) * m // C):
+            acc = 0.0
+            for a in range(3):
+                mn = np.inf
+                mx = -np.inf
+                for k in range(T.shape[1]):
+                    v = T[i, k]
+                    p = V_t0[v, a]
+                    q = V_t1[v, a]
+                    mn = min(mn, p, q)
+                    mx = max(mx, p, q)
+                    acc += p + q
+                lo[i, a] = mn - inflation
+                hi[i, a] = mx + inflation
+                corners[c, 0, a] = min(corners[c, 0, a], lo[i, a])
+                corners[c, 1, a] = max(corners[c, 1, a], hi[i, a])
+            if not (acc - acc == 0.0):
+                lo[i, 0] = np.nan
+                bad = np.nan
+        corners[c, 2, 0] = bad
 
 
 _boxes = parallel_kernel(_boxes_py, "_bp_boxes")
 
 
-def _box_arrays(V_t0, V_t1, T, inflation):
+def _box_arrays(V_t0, V_t1, T, inflation, corners=False):
+    """``(lo, hi)``: the boxes of primitives T over V_t0 -> V_t1, inflated; with
+    `corners`, ``(lo, hi, (2, 3) bounding corners)`` (`_box_corners`' value and checks,
+    made in the same pass)."""
     lo = np.empty((T.shape[0], 3))
     hi = np.empty((T.shape[0], 3))
-    _boxes(T.shape[0], V_t0, V_t1, T, float(inflation), lo, hi)
-    return lo, hi
+    parts = np.empty((_STAT_CHUNKS, 3, 3))
+    _boxes(T.shape[0], V_t0, V_t1, T, float(inflation), lo, hi, parts)
+    return (lo, hi, _checked_corners(parts)) if corners else (lo, hi)
 
 
 @njit(cache=True, forceinline=True)
@@ -985,16 +1003,22 @@ def _box_corners(lo, hi):
     has a NaN or infinite bound (every grid is sized from these corners)."""
     parts = np.empty((_STAT_CHUNKS, 3, 3))
     _corners(lo.shape[0], lo, hi, parts)
+    return _checked_corners(parts)
+
+
+def _checked_corners(parts):
+    """The corners (2, 3) of per-chunk corners `parts` (`_corners_py`), refusing NaN."""
     if not np.all(parts[:, 2, 0] == 0.0):
         raise InputError("broad phase: a primitive has a NaN or infinite coordinate (positions must be finite)")
     return np.stack([parts[:, 0].min(axis=0), parts[:, 1].max(axis=0)])
 
 
-def _box_stats(lo, hi):
-    """``(corners (2, 3), ext)``: the boxes' bounding corners and the extents of a
-    strided sample of <= `_STAT_SAMPLE` of them (all that `_median_extents` reads)."""
+def _box_stats(lo, hi, corners=None):
+    """``(corners (2, 3), ext)``: the boxes' bounding corners (`corners` when the caller
+    has them, `_box_arrays`') and the extents of a strided sample of <= `_STAT_SAMPLE`
+    of them (all that `_median_extents` reads)."""
     step = max(1, -(-lo.shape[0] // _STAT_SAMPLE))
-    return _box_corners(lo, hi), hi[::step] - lo[::step]
+    return _box_corners(lo, hi) if corners is None else corners, hi[::step] - lo[::step]
 
 
 def _median_extents(sample):
@@ -1177,13 +1201,28 @@ class _Cells(NamedTuple):
     nb: int
 
 
+class Layout(NamedTuple):
+    """What a plan chose from samples of its boxes, for the next query of the same scene
+    (`fold_min_sq`): the key's axis order (`_axis_order`; None: natural) and whether its
+    rows compact their box hits (`_Plan._set_rows`). Both change the time, never a pair
+    or a minimum; consecutive states of a recording sample the same choices."""
+
+    perm: np.ndarray | None
+    compact: bool
+
+
 class _Plan:
     """Boxes of both sets on one grid; see the module docstring. `listing`: the plan
     lists pairs rather than folds minima. A listed self query takes a covering grid (a
     fold's lower-corner grid scans half the region); a fold's cells are cut along x
-    (`_RUN_SPLIT`). Every layout answers every query, only the speed differs."""
+    (`_RUN_SPLIT`). Every layout answers every query, only the speed differs.
 
-    def __init__(self, loA, hiA, TA, loB, hiB, TB, self_query, inflation=0.0, listing=True, cells="cube"):
+    `layout`: a `Layout` to take instead of sampling one; its boxes must then be given
+    in its axis order (`fold_min_sq` computes them so: no permuted copy). `corners`:
+    the two sets' bounding corners when the caller has them (`_box_arrays`)."""
+
+    def __init__(self, loA, hiA, TA, loB, hiB, TB, self_query, inflation=0.0, listing=True, cells="cube",
+                 layout=None, corners=(None, None)):
         if cells not in CELL_SHAPES:
             raise ValueError(f"cells must be one of {CELL_SHAPES}; got {cells!r}")
         self.self_query = bool(self_query)
@@ -1192,10 +1231,11 @@ class _Plan:
         nA, nB = loA.shape[0], loB.shape[0]
         if nA == 0 or nB == 0:
             self.empty = True
+            self.perm, self.compact = None, False
             return
         self.empty = False
-        cornA, extA = _box_stats(loA, hiA)
-        cornB, extB = (cornA, extA) if self_query else _box_stats(loB, hiB)
+        cornA, extA = _box_stats(loA, hiA, corners[0])
+        cornB, extB = (cornA, extA) if self_query else _box_stats(loB, hiB, corners[1])
         origin = np.minimum(cornA[0], cornB[0])
         # The min folds' box bound (`_gap_sq`): boxes are the primitives' inflated by
         # `inflation` per side; the slack covers every rounding (module docstring).
@@ -1224,7 +1264,10 @@ class _Plan:
             h = np.full(3, _SLAB_ALONG * cube)
             h[int(np.argmin(spans))] = _SLAB_ACROSS * cube
         covering = self.self_query and listing
-        self.perm = perm = _axis_order(loB, origin, h) if _AXIS_ORDER else None
+        if layout is not None:  # the boxes came in the layout's axis order
+            self.perm, perm = layout.perm, None
+        else:
+            self.perm = perm = _axis_order(loB, origin, h) if _AXIS_ORDER else None
         if perm is not None:  # from here on the plan sees the boxes' axes in key order
             loA, hiA = _permuted(loA, hiA, perm)
             loB, hiB = (loA, hiA) if self_query else _permuted(loB, hiB, perm)
@@ -1241,7 +1284,7 @@ class _Plan:
         self.boff, self.ent_key, self.ent_id, self.ent_box, self.ent_clo = _build_grid(
             g.cloB, g.chiB, g.smallB, covering, g.dims, g.bits, g.nb, loB, hiB)
         self.origin, self.h, self.dims, self.bits, self.reach = origin, g.h, g.dims, g.bits, g.reach
-        self._set_rows(loA, hiA, TA, g.cloA, g.chiA, g.smallA)
+        self._set_rows(loA, hiA, TA, g.cloA, g.chiA, g.smallA, None if layout is None else layout.compact)
         self.bigB = np.ascontiguousarray(np.flatnonzero(~g.smallB).astype(np.int64))
 
     def _sized(self, loA, hiA, loB, hiB, origin, h, spans, covering, max_reach, big_share):
@@ -1283,12 +1326,14 @@ class _Plan:
             nb = 1 << bits
         return _Cells(h, cloA, chiA, smallA, cloB, chiB, smallB, reach, dims, bits, nb)
 
-    def _set_rows(self, loA, hiA, TA, cloA, chiA, smallA):
+    def _set_rows(self, loA, hiA, TA, cloA, chiA, smallA, compact=None):
         self.loA, self.hiA, self.TA = loA, hiA, TA
         self.cloA, self.chiA, self.smallA = cloA, chiA, smallA
         self.compact = False
         nA = loA.shape[0]
-        if nA >= _COMPACT_MIN_ROWS:
+        if compact is not None:  # a `Layout`'s
+            self.compact = bool(compact)
+        elif nA >= _COMPACT_MIN_ROWS:
             # The scan compacts its box hits first where few entries hit (a sample of
             # the rows' buckets; the choice changes the time, never the pairs).
             rows = np.arange(0, nA, max(1, nA // _SAMPLE_ROWS), dtype=np.int64)
@@ -1594,8 +1639,9 @@ def choose_cells(x, TA, TB, inflation, self_query) -> str:
     return best if cost[best] < _SHAPE_GAIN * cost["cube"] else "cube"
 
 
-def fold_min_sq(x, TA, TB, inflation, partial, self_query, cells="cube"):
-    """Fold the squared distances of near pairs into per-vertex minima (static scene).
+def fold_min_sq(x, TA, TB, inflation, partial, self_query, cells="cube", layout=None) -> Layout:
+    """Fold the squared distances of near pairs into per-vertex minima (static scene);
+    return the plan's `Layout`.
 
     Parameters
     ----------
@@ -1609,14 +1655,25 @@ def fold_min_sq(x, TA, TB, inflation, partial, self_query, cells="cube"):
     self_query : bool
     cells : str
         Cell shape of the grid (`CELL_SHAPES`, `choose_cells`): the time, never the result.
+    layout : Layout, optional
+        The layout a fold of this scene returned (a recent state's): taken instead of
+        sampling the boxes, and the boxes are made in its axis order from a copy of the
+        positions with their columns in that order (the boxes' bounds are the same
+        floats; the distances are computed from `x` as always). The time, never the
+        result.
 
     Notes
     -----
     Inputs are assumed validated (the trust-region stage does it once per sequence).
     """
-    loA, hiA = _box_arrays(x, x, TA, inflation)
-    loB, hiB = (loA, hiA) if self_query else _box_arrays(x, x, TB, inflation)
-    _Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation, listing=False, cells=cells).min_sq_into(x, partial)
+    perm = None if layout is None else layout.perm
+    V = x if perm is None else np.ascontiguousarray(x[:, perm])
+    loA, hiA, cA = _box_arrays(V, V, TA, inflation, corners=True)
+    loB, hiB, cB = (loA, hiA, cA) if self_query else _box_arrays(V, V, TB, inflation, corners=True)
+    plan = _Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation, listing=False, cells=cells, layout=layout,
+                 corners=(cA, cB))
+    plan.min_sq_into(x, partial)
+    return Layout(plan.perm, plan.compact)
 
 
 def min_pair_sq(x, TA, TB, inflation, self_query) -> float:

@@ -21,7 +21,7 @@ from ..._version import __version__
 from ...errors import CertificateError, InputError
 from ..fit.certificate import certify_map
 from ..verify.gate import StepGate, deform_margin
-from ..verify.path import check_thickness
+from ..verify.path import SceneTopology, check_thickness
 from ..trust.stats import compute_stats, residual_summary
 from ..fit.step import fit_step
 from .strategy import make_strategy, step_input, with_shortened
@@ -121,8 +121,9 @@ def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thic
     if check_start:
         out["start_intersections"] = start_state_intersections(seq, S_idx)
     _warm_up(seq, S_idx[0], model, projection)
+    topology = SceneTopology(seq.n_vertices, seq.edges, seq.faces)  # read once, for every step's gate
     for k, s in enumerate(S_idx):
-        step, outcome = run_step(seq, s, strategy, m, thickness, weights, contact_radius)
+        step, outcome = run_step(seq, s, strategy, m, thickness, weights, contact_radius, topology)
         strategy.record(k, outcome)
         _record(out, k, step, outcome, seq, per_vertex)
         if progress is not None:
@@ -133,15 +134,16 @@ def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thic
     return DeformOutput(steps=out, options=options, groups=strategy.groups())
 
 
-def run_step(seq, s, strategy, m, thickness, weights, contact_radius):
+def run_step(seq, s, strategy, m, thickness, weights, contact_radius, topology=None):
     """Step `s`: the strategy's outcomes, then shortened steps, then doing nothing; the
-    first that passes the step's gate. Returns ``(StepInput, Outcome)``.
+    first that passes the step's gate (`topology`: the scene's `SceneTopology`, else
+    read from `seq`). Returns ``(StepInput, Outcome)``.
 
     Raises CertificateError if the applied map fails the exact certificate (never
     expected: the gate certified it).
     """
     gate = StepGate(seq.positions[s], edges=seq.edges, faces=seq.faces, thickness=thickness,
-                    obstacles=seq.obstacles, frame=s)
+                    obstacles=seq.obstacles, frame=s, topology=topology)
     step = step_input(seq, s, m, gate, weights, contact_radius)
     outcome = next(o for o in with_shortened(strategy.outcomes(step), step) if gate.passes(o.x_def, o.maps))
     for A_applied, _, _ in outcome.maps:  # belt and braces: every applied map through the one gate

@@ -131,12 +131,15 @@ class StepGate:
     obstacles : list of `penfree.sequence.Obstacle`
     frame : int
         The step's frame s (kinematic obstacles are held there).
+    topology : `verify.path.SceneTopology`, optional
+        `edges` and `faces` validated once, for the gates of many steps.
     """
 
-    def __init__(self, x, *, edges=None, faces=None, thickness=0.0, obstacles=(), frame=0):
+    def __init__(self, x, *, edges=None, faces=None, thickness=0.0, obstacles=(), frame=0, topology=None):
         self.x = np.ascontiguousarray(x, dtype=np.float64)
         self.magnitude = float(np.abs(self.x).max()) if len(self.x) else 0.0  # largest start coordinate
         self.edges, self.faces = edges, faces
+        self.topology = topology  # `verify.SceneTopology` of edges and faces, made once for many gates
         self.thickness = float(thickness)
         self.margin = deform_margin(self.thickness)
         self.obstacles = list(obstacles or ())
@@ -172,7 +175,8 @@ class StepGate:
             self._near_radius = max(reach, NEAR_FIRST_FACTOR * self.thickness)
             keep = None if self._separations is None else self._separations < self._near_radius
             self._near = [(kind, ij, idx, _start_distance(self.x, kind, idx))
-                          for kind, ij, idx in near_pairs(self.x, self.edges, self.faces, self._near_radius, keep)]
+                          for kind, ij, idx in near_pairs(self.x, self.edges, self.faces, self._near_radius, keep,
+                                                            self.topology)]
         return self._near
 
     def passes(self, x_def, maps) -> bool:

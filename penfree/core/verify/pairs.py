@@ -7,11 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..topology import referenced_vertices
 from .path import _Body, _Collector, _inflation, _narrow, _pairs_self, _self_candidates, _start_check
 
 
-def near_pairs(x, edges, faces, radius, keep=None):
+def near_pairs(x, edges, faces, radius, keep=None, topology=None):
     """The scene's own pairs that may lie within `radius` of each other at `x` (one query).
 
     Parameters
@@ -26,6 +25,9 @@ def near_pairs(x, edges, faces, radius, keep=None):
         a primitive) is at least `radius` is in no such pair, since each pair's
         distance is one of its vertices' terms (`StepGate.use_separations`). Ignored
         when a vertex is in no primitive (its pairs with faces are no one's term).
+    topology : SceneTopology, optional
+        The scene's topology, made once for many states (`edges` and `faces` are then
+        not read).
 
     Returns
     -------
@@ -35,8 +37,8 @@ def near_pairs(x, edges, faces, radius, keep=None):
         with `keep`, those among the kept primitives (same indices: ``ij`` into the
         scene's edges, vertices and faces).
     """
-    body = _Body(x, x, edges, faces, "scene")
-    if keep is not None and not referenced_vertices(body.x_t0.shape[0], body.F, body.E).all():
+    body = _Body(x, x, edges, faces, "scene", topology)
+    if keep is not None and not body.topology.all_referenced:
         keep = None
     return _self_candidates(body, body.x_t0, body.x_t0, _inflation(radius, body.x_t0), keep)
 

@@ -102,6 +102,53 @@ def test_gate_verdicts_with_and_without_separations(rng):
     assert any(verdicts) and not all(verdicts)
 
 
+def _pair_sets(pairs):
+    return {(k, int(i), int(j)) for k, ij, _ in pairs for i, j in ij}
+
+
+def test_a_scene_topology_made_once_gives_the_same_pairs_and_verdicts(rng):
+    # The gate of every step of a recording takes one `SceneTopology`: the same near
+    # pairs (with and without kept vertices; with a free vertex, which disables `keep`)
+    # and the same verdicts as gates that read edges and faces themselves.
+    from penfree.core.verify.path import SceneTopology
+
+    V, F = _resting_sheets(rng, gap=0.003)
+    E = edges_from_faces(F)
+    h, R = 0.002, 0.01
+    topo = SceneTopology(len(V), None, F)
+    assert {tuple(e) for e in np.sort(topo.E, axis=1)} == {tuple(e) for e in np.sort(E, axis=1)}
+    d = per_vertex_separation(V, E, F, R)
+    for keep in (None, d < R):
+        assert _pair_sets(near_pairs(V, None, F, R, keep, topo)) == _pair_sets(near_pairs(V, None, F, R, keep))
+    assert topo.all_referenced
+    Vf = np.concatenate([V, [[0.55, 0.55, 0.001]]])  # a free vertex: `keep` is ignored
+    topo_f = SceneTopology(len(Vf), None, F)
+    assert not topo_f.all_referenced
+    df = per_vertex_separation(Vf, E, F, R)
+    assert _pair_sets(near_pairs(Vf, None, F, R, df < R, topo_f)) == _pair_sets(near_pairs(Vf, None, F, R, df < R))
+    verdicts = []
+    for s in (1.0, 0.97, 0.6):
+        for k in range(3):
+            A = np.diag([1.0, 1.0, s]) @ np.linalg.qr(np.eye(3) + 0.01 * k * rng.normal(size=(3, 3)))[0]
+            b = 0.01 * k * rng.normal(size=3)
+            maps = [(A, b, None)]
+            x_def = V @ A.T + b
+            verdicts.append(StepGate(V, faces=F, thickness=h).passes(x_def, maps))
+            assert StepGate(V, faces=F, thickness=h, topology=topo).passes(x_def, maps) == verdicts[-1]
+    assert any(verdicts) and not all(verdicts)
+
+
+def test_a_scene_topology_of_other_vertices_is_refused(rng):
+    from penfree.core.verify.path import SceneTopology
+    from penfree.errors import InputError
+
+    V, F = _resting_sheets(rng)
+    with pytest.raises(InputError, match="a topology of"):
+        near_pairs(V[:-1], None, F[F.max(axis=1) < len(V) - 1], 0.01, topology=SceneTopology(len(V), None, F))
+    with pytest.raises(InputError, match="faces"):
+        SceneTopology(len(V) - 1, None, F)
+
+
 def test_separations_and_near_pairs_count_a_free_vertex(rng):
     # A vertex in no primitive still meets faces (SPEC section 7, as ipctk counts such
     # points): a free vertex resting on the lower sheet is in its own separation and in
