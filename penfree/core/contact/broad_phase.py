@@ -1205,28 +1205,16 @@ class _Cells(NamedTuple):
     nb: int
 
 
-class Layout(NamedTuple):
-    """What a plan chose from samples of its boxes, for the next query of the same scene
-    (`fold_min_sq`): the key's axis order (`_axis_order`; None: natural) and whether its
-    rows compact their box hits (`_Plan._set_rows`). Both change the time, never a pair
-    or a minimum; consecutive states of a recording sample the same choices."""
-
-    perm: np.ndarray | None
-    compact: bool
-
-
 class _Plan:
     """Boxes of both sets on one grid; see the module docstring. `listing`: the plan
     lists pairs rather than folds minima. A listed self query takes a covering grid (a
     fold's lower-corner grid scans half the region); a fold's cells are cut along x
     (`_RUN_SPLIT`). Every layout answers every query, only the speed differs.
 
-    `layout`: a `Layout` to take instead of sampling one; its boxes must then be given
-    in its axis order (`fold_min_sq` computes them so: no permuted copy). `corners`:
-    the two sets' bounding corners when the caller has them (`_box_arrays`)."""
+    `corners`: the two sets' bounding corners when the caller has them (`_box_arrays`)."""
 
     def __init__(self, loA, hiA, TA, loB, hiB, TB, self_query, inflation=0.0, listing=True, cells="cube",
-                 layout=None, corners=(None, None)):
+                 corners=(None, None)):
         if cells not in CELL_SHAPES:
             raise ValueError(f"cells must be one of {CELL_SHAPES}; got {cells!r}")
         self.self_query = bool(self_query)
@@ -1235,7 +1223,6 @@ class _Plan:
         nA, nB = loA.shape[0], loB.shape[0]
         if nA == 0 or nB == 0:
             self.empty = True
-            self.perm, self.compact = None, False
             return
         self.empty = False
         cornA, extA = _box_stats(loA, hiA, corners[0])
@@ -1268,10 +1255,7 @@ class _Plan:
             h = np.full(3, _SLAB_ALONG * cube)
             h[int(np.argmin(spans))] = _SLAB_ACROSS * cube
         covering = self.self_query and listing
-        if layout is not None:  # the boxes came in the layout's axis order
-            self.perm, perm = layout.perm, None
-        else:
-            self.perm = perm = _axis_order(loB, origin, h) if _AXIS_ORDER else None
+        self.perm = perm = _axis_order(loB, origin, h) if _AXIS_ORDER else None
         if perm is not None:  # from here on the plan sees the boxes' axes in key order
             loA, hiA = _permuted(loA, hiA, perm)
             loB, hiB = (loA, hiA) if self_query else _permuted(loB, hiB, perm)
@@ -1288,7 +1272,7 @@ class _Plan:
         self.boff, self.ent_key, self.ent_id, self.ent_box, self.ent_clo = _build_grid(
             g.cloB, g.chiB, g.smallB, covering, g.dims, g.bits, g.nb, loB, hiB)
         self.origin, self.h, self.dims, self.bits, self.reach = origin, g.h, g.dims, g.bits, g.reach
-        self._set_rows(loA, hiA, TA, g.cloA, g.chiA, g.smallA, None if layout is None else layout.compact)
+        self._set_rows(loA, hiA, TA, g.cloA, g.chiA, g.smallA)
         self.bigB = np.ascontiguousarray(np.flatnonzero(~g.smallB).astype(np.int64))
 
     def _sized(self, loA, hiA, loB, hiB, origin, h, spans, covering, max_reach, big_share):
@@ -1330,14 +1314,12 @@ class _Plan:
             nb = 1 << bits
         return _Cells(h, cloA, chiA, smallA, cloB, chiB, smallB, reach, dims, bits, nb)
 
-    def _set_rows(self, loA, hiA, TA, cloA, chiA, smallA, compact=None):
+    def _set_rows(self, loA, hiA, TA, cloA, chiA, smallA):
         self.loA, self.hiA, self.TA = loA, hiA, TA
         self.cloA, self.chiA, self.smallA = cloA, chiA, smallA
         self.compact = False
         nA = loA.shape[0]
-        if compact is not None:  # a `Layout`'s
-            self.compact = bool(compact)
-        elif nA >= _COMPACT_MIN_ROWS:
+        if nA >= _COMPACT_MIN_ROWS:
             # The scan compacts its box hits first where few entries hit (a sample of
             # the rows' buckets; the choice changes the time, never the pairs).
             rows = np.arange(0, nA, max(1, nA // _SAMPLE_ROWS), dtype=np.int64)
@@ -1643,9 +1625,8 @@ def choose_cells(x, TA, TB, inflation, self_query) -> str:
     return best if cost[best] < _SHAPE_GAIN * cost["cube"] else "cube"
 
 
-def fold_min_sq(x, TA, TB, inflation, partial, self_query, cells="cube", layout=None) -> Layout:
-    """Fold the squared distances of near pairs into per-vertex minima (static scene);
-    return the plan's `Layout`.
+def fold_min_sq(x, TA, TB, inflation, partial, self_query, cells="cube"):
+    """Fold the squared distances of near pairs into per-vertex minima (static scene).
 
     Parameters
     ----------
@@ -1659,25 +1640,15 @@ def fold_min_sq(x, TA, TB, inflation, partial, self_query, cells="cube", layout=
     self_query : bool
     cells : str
         Cell shape of the grid (`CELL_SHAPES`, `choose_cells`): the time, never the result.
-    layout : Layout, optional
-        The layout a fold of this scene returned (a recent state's): taken instead of
-        sampling the boxes, and the boxes are made in its axis order from a copy of the
-        positions with their columns in that order (the boxes' bounds are the same
-        floats; the distances are computed from `x` as always). The time, never the
-        result.
 
     Notes
     -----
     Inputs are assumed validated (the trust-region stage does it once per sequence).
     """
-    perm = None if layout is None else layout.perm
-    V = x if perm is None else np.ascontiguousarray(x[:, perm])
-    loA, hiA, cA = _box_arrays(V, V, TA, inflation, corners=True)
-    loB, hiB, cB = (loA, hiA, cA) if self_query else _box_arrays(V, V, TB, inflation, corners=True)
-    plan = _Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation, listing=False, cells=cells, layout=layout,
-                 corners=(cA, cB))
-    plan.min_sq_into(x, partial)
-    return Layout(plan.perm, plan.compact)
+    loA, hiA, cA = _box_arrays(x, x, TA, inflation, corners=True)
+    loB, hiB, cB = (loA, hiA, cA) if self_query else _box_arrays(x, x, TB, inflation, corners=True)
+    _Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation, listing=False, cells=cells,
+          corners=(cA, cB)).min_sq_into(x, partial)
 
 
 def min_pair_sq(x, TA, TB, inflation, self_query) -> float:

@@ -91,7 +91,7 @@ def capped_separations(partial, radius) -> np.ndarray:
     return np.minimum(np.sqrt(partial.min(axis=0)), float(radius))
 
 
-def per_vertex_separation(x, E, F, radius, reach=None, cells=("cube", "cube"), layouts=None):
+def per_vertex_separation(x, E, F, radius, reach=None, cells=("cube", "cube")):
     """Per-vertex smallest distance to non-adjacent primitives, capped at `radius`.
 
     Parameters
@@ -113,10 +113,6 @@ def per_vertex_separation(x, E, F, radius, reach=None, cells=("cube", "cube"), l
         Grid cell shapes of the edge-edge and the vertex-face folds
         (`broad_phase.choose_cells`, which `SeparationQuery` runs once per scene): they
         change the time, never a value.
-    layouts : dict, optional
-        The folds' `broad_phase.Layout` by fold (``"ee"``, ``"vf"``), taken where present
-        and replaced by the ones the folds used (`SeparationQuery` keeps them from state
-        to state): the time, never a value.
 
     Returns
     -------
@@ -147,8 +143,8 @@ def per_vertex_separation(x, E, F, radius, reach=None, cells=("cube", "cube"), l
     """
     r = _checked(radius, "radius")
     if reach is None or not _checked(reach, "reach") < r:
-        return _separations(x, E, F, r, cells, layouts)
-    return complete_separations(x, E, F, r, float(reach), _separations(x, E, F, float(reach), cells, layouts))
+        return _separations(x, E, F, r, cells)
+    return complete_separations(x, E, F, r, float(reach), _separations(x, E, F, float(reach), cells))
 
 
 def complete_separations(x, E, F, radius, reach, d):
@@ -180,21 +176,18 @@ def _checked(radius, name):
     return r
 
 
-def _separations(x, E, F, radius, cells=("cube", "cube"), layouts=None):
+def _separations(x, E, F, radius, cells=("cube", "cube")):
     """The query at one radius (every pair whose boxes, inflated by radius / 2, overlap);
-    `cells` the edge-edge and vertex-face folds' cell shapes, `layouts` their layouts
-    (`per_vertex_separation`)."""
+    `cells` the edge-edge and vertex-face folds' cell shapes."""
     n = x.shape[0]
     inflation = 0.5 * radius
-    lay = {} if layouts is None else layouts
     # from the cap: pairs beyond the radius are skipped from the first pair on
     partial = start_minima(n, radius)
     if E.shape[0]:
-        lay["ee"] = fold_min_sq(x, E, E, inflation, partial, self_query=True, cells=cells[0], layout=lay.get("ee"))
+        fold_min_sq(x, E, E, inflation, partial, self_query=True, cells=cells[0])
     if F.shape[0]:
         Q = _face_vertices(n)
-        lay["vf"] = fold_min_sq(x, Q, F, inflation, partial, self_query=False, cells=cells[1],
-                                layout=lay.get("vf"))
+        fold_min_sq(x, Q, F, inflation, partial, self_query=False, cells=cells[1])
     return capped_separations(partial, radius)
 
 
@@ -282,8 +275,7 @@ class SeparationQuery:
         (vertices at or above the reach, the ones completed at the full radius, over
         all queries); ``reach`` (the last); ``cells`` (the last query's folds' cell
         shapes, `separation_cells`, chosen once per octave of the query radius: box
-        sizes follow it). The folds' layouts (`broad_phase.Layout`) are sampled by the
-        first query of an octave and kept for the next ones.
+        sizes follow it).
 
     Examples
     --------
@@ -300,7 +292,6 @@ class SeparationQuery:
         self.F = np.ascontiguousarray(F, dtype=np.int64)
         self.reach = None
         self._cells_by_octave = {}
-        self._layouts_by_octave = {}
         self.info = {"queries": 0, "reached": 0, "completed": 0, "reach": None, "cells": None}
 
     def __call__(self, x, radius):
@@ -308,10 +299,8 @@ class SeparationQuery:
         x = np.ascontiguousarray(x, dtype=np.float64)
         r = _checked(radius, "radius")
         reach = self.reach if self.reach is not None and self.reach < r else None
-        rho = r if reach is None else reach
-        cells = self._cells(x, rho)
-        layouts = self._layouts_by_octave.setdefault(_octave(rho), {})
-        d = per_vertex_separation(x, self.E, self.F, r, reach=reach, cells=cells, layouts=layouts)
+        cells = self._cells(x, r if reach is None else reach)
+        d = per_vertex_separation(x, self.E, self.F, r, reach=reach, cells=cells)
         self.info["queries"] += 1
         if reach is not None:
             self.info["reached"] += 1
@@ -323,7 +312,7 @@ class SeparationQuery:
     def _cells(self, x, rho):
         """The folds' cell shapes for a query at `rho`: chosen (`separation_cells`) at
         the first query whose `rho` lies in its octave [2^k, 2^(k+1)) and kept for it."""
-        octave = _octave(rho)
+        octave = math.frexp(rho)[1] if rho > 0.0 else None
         if octave not in self._cells_by_octave:
             self._cells_by_octave[octave] = separation_cells(x, self.E, self.F, rho)
         self.info["cells"] = self._cells_by_octave[octave]
@@ -333,8 +322,3 @@ class SeparationQuery:
         """Take the next reach from separations `d` at `radius` that another source (a
         neighbour list) answered for this scene (`next_reach`)."""
         self.reach = next_reach(d, radius)
-
-
-def _octave(rho):
-    """The octave [2^(k-1), 2^k) of a query radius (k), None for 0."""
-    return math.frexp(rho)[1] if rho > 0.0 else None

@@ -344,68 +344,6 @@ def test_plan_rejects_an_unknown_cell_shape():
         bp._Plan(lo, hi, T, lo, hi, T, True, 0.0, listing=False, cells="sphere")
 
 
-@pytest.mark.parametrize("radius", [0.0, 0.01, 0.05, 0.3])
-def test_layouts_give_the_same_bits(rng, monkeypatch, radius):
-    # A fold given a layout (every axis order, compacting or not) makes its boxes in
-    # that order and skips the sampling: the pairs and minima are the unpruned fold's.
-    for name, (V, E, F) in _cell_scenes(rng).items():
-        want = _unpruned(V, E, F, radius, monkeypatch)
-        for perm in (None, [0, 1, 2], [1, 0, 2], [2, 0, 1], [1, 2, 0]):
-            for compact in (False, True):
-                lay = bp.Layout(None if perm is None else np.array(perm), compact)
-                layouts = {"ee": lay, "vf": lay}
-                got = per_vertex_separation(V, E, F, radius, layouts=layouts)
-                np.testing.assert_array_equal(got.view(np.uint64), want.view(np.uint64),
-                                              err_msg=f"{name} {perm} {compact}")
-                for k in ("ee", "vf"):  # the folds hand back the layouts they were given
-                    assert _same_layout(layouts[k], lay), (name, k, layouts[k], lay)
-
-
-def _same_layout(a, b):
-    same_perm = (a.perm is None and b.perm is None) or (
-        a.perm is not None and b.perm is not None and np.array_equal(a.perm, b.perm))
-    return same_perm and a.compact == b.compact
-
-
-def test_fold_returns_the_layout_it_sampled(rng):
-    V, F = _sheet(12, rng)
-    E = edges_from_faces(F)
-    for W in (V, np.ascontiguousarray(V[:, [2, 0, 1]] * [1.0, 3.0, 1.0])):  # two axis orders
-        partial = proximity.start_minima(len(W), 0.05)
-        lay = bp.fold_min_sq(W, E, E, 0.025, partial, True)
-        lo, hi = bp._box_arrays(W, W, E, 0.025)
-        plan = bp._Plan(lo, hi, E, lo, hi, E, True, 0.025, listing=False)
-        assert _same_layout(lay, bp.Layout(plan.perm, plan.compact))
-        again = proximity.start_minima(len(W), 0.05)
-        assert _same_layout(bp.fold_min_sq(W, E, E, 0.025, again, True, layout=lay), lay)
-        np.testing.assert_array_equal(again.min(axis=0), partial.min(axis=0))
-
-
-def test_separation_query_keeps_layouts_per_octave(rng, monkeypatch):
-    V, E = _yarn(rng, side=6, n=20)
-    none = np.zeros((0, 3), dtype=np.int64)
-    given = []  # the layout the query's edge-edge fold was given, per query
-    real = bp.fold_min_sq
-
-    def spy(*a, layout=None, **k):
-        given[-1].append(layout)
-        return real(*a, layout=layout, **k)
-
-    q = proximity.SeparationQuery(E, none)
-    for s in range(4):
-        x = np.ascontiguousarray(V + 1e-4 * s)
-        want = per_vertex_separation(x, E, none, 0.05)
-        given.append([])
-        with monkeypatch.context() as m:
-            m.setattr(proximity, "fold_min_sq", spy)
-            np.testing.assert_array_equal(q(x, 0.05), want)
-    # the first query (at the radius) and the first at the reach (another octave)
-    # sample their layouts; the next ones at the reach take the one the last one used
-    assert q.info["reached"] == 3
-    assert given[0][0] is None and given[1][0] is None
-    assert isinstance(given[2][0], bp.Layout) and isinstance(given[3][0], bp.Layout)
-
-
 def test_box_corners_come_with_the_boxes(rng):
     V, F = _sheet(9, rng)
     E = edges_from_faces(F)
