@@ -238,7 +238,8 @@ def _boxes_py(V_t0, V_t1, T, inflation, lo, hi, corners):
     # would cost more on a loaded machine).
     # A NaN or infinite coordinate makes its box NaN (min and max would pass a NaN
     # by; the sum of the coordinates does not, nor does it overflow below ~1e307):
-    # `_box_corners` refuses it before any grid is sized.
+    # the chunk's flag (`corners[c, 2, 0]`) is then NaN, and `_checked_corners` refuses it
+    # before any grid is sized.
     m = T.shape[0]
     C = corners.shape[0]
     for c in prange(C):
