@@ -31,7 +31,10 @@ import types
 
 import numba
 import numba.np.ufunc.parallel as _numba_parallel
-from numba import njit
+import numpy as np
+from numba import njit, types as nbtypes
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 #: Work items (pairs, vertices, ...) below which a parallel region does not pay.
 #: At ~20-50 ns per item, 1<<15 items is ~1 ms of serial work: a descheduled
@@ -131,6 +134,35 @@ def parallel_kernel(fn, name, min_work=PARALLEL_MIN_WORK, **jit_options):
         ``kernel(work, *args)``.
     """
     return _Dual(fn, name, min_work, jit_options)
+
+
+@intrinsic
+def claim(typingctx, counter):
+    """``counter[0]`` before adding 1 to it, atomically (an LLVM ``atomicrmw add``):
+    inside a ``prange`` over worker slots, the next chunk of work no other worker took.
+
+    For kernels whose chunks each fold into their worker's own slot by an exact
+    reduction (min): which worker takes which chunk then changes nothing but the time.
+    A worker whose thread is descheduled takes fewer chunks instead of holding up the
+    region (a static split waits for its slowest thread: issue 13's noisy 2-vCPU hosts).
+    Relaxed ordering suffices: a chunk's work reads nothing another worker writes, and
+    the region's end orders every write before the caller's reduction.
+    """
+    if not (isinstance(counter, nbtypes.Array) and counter.ndim == 1 and counter.dtype == nbtypes.int64):
+        return None
+    sig = nbtypes.int64(counter)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, signature.args[0], ary, [context.get_constant(nbtypes.intp, 0)])
+        return builder.atomic_rmw("add", ptr, context.get_constant(nbtypes.int64, 1), ordering="monotonic")
+
+    return sig, codegen
+
+
+def work_counter():
+    """A fresh counter for `claim` (one per kernel call)."""
+    return np.zeros(1, dtype=np.int64)
 
 
 def _specialisations(kernel) -> int:

@@ -40,6 +40,38 @@ def test_both_builds_same_bits():
     np.testing.assert_array_equal(s, d)
 
 
+def _claims_py(counter, n_chunks, taken, workers):
+    for w in prange(workers.shape[0]):
+        c = parallel.claim(counter)
+        while c < n_chunks:
+            taken[c] += 1
+            workers[w] += 1
+            c = parallel.claim(counter)
+
+
+_claims = parallel_kernel(_claims_py, "_test_claims", min_work=0)
+
+
+def test_claim_hands_out_every_chunk_once():
+    # Workers claiming chunks from one counter (an atomic fetch-and-add): every chunk is
+    # taken exactly once, on one thread and on two, by either build; each worker's last
+    # claim overshoots once.
+    for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+        numba.set_num_threads(threads)
+        try:
+            for kernel in (_claims.serial, _claims.parallel):
+                for n_chunks, n_workers in ((0, 2), (1, 2), (1000, 2), (1000, 7), (5, 1)):
+                    counter = parallel.work_counter()
+                    taken = np.zeros(n_chunks, dtype=np.int64)
+                    workers = np.zeros(n_workers, dtype=np.int64)
+                    kernel(counter, n_chunks, taken, workers)
+                    assert np.all(taken == 1)
+                    assert workers.sum() == n_chunks
+                    assert counter[0] == n_chunks + n_workers
+        finally:
+            numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+
+
 def test_named_copies_get_their_own_cache_names():
     f = parallel.named(_square_py, "_x_named")
     assert f.__qualname__ == "_x_named" and f.__code__ is _square_py.__code__

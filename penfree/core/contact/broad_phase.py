@@ -47,7 +47,9 @@ output is the same for any number of threads, needs no global sort, and memory
 is O(n + output), never O(n^2). Two passes (count, then fill) cost 2-4x more
 (64K scenes, issue 13). The same row visit folds pair distances into minima
 without storing pairs (`fold_min_sq`, `min_pair_sq`) and filters edge-face pairs
-through certified orientation signs (`edge_face_candidates`). A built grid can be
+through certified orientation signs (`edge_face_candidates`); there each worker (a row
+of minima, one per thread) claims chunk after chunk of the rows (`parallel.claim`), so
+a descheduled thread leaves its share to the others. A built grid can be
 queried by a second set of rows (`_Plan.with_rows`): the certificate path's edge-face
 candidates and vertex-face fold share the faces' grid (`start_pass`). On a triangle
 mesh the certificate path's start pass is one visit: every edge-face box hit (adjacent
@@ -71,8 +73,8 @@ Pruned folds. Before evaluating a pair, the min folds bound its squared distance
 from below by its boxes (`_gap_sq`: per-axis gaps of the primitives, the boxes less
 the inflation on both sides; the fused start pass by a projection gap instead,
 `_fold_owned`) and skip it when the bound, times ``1 - 1e-9``, exceeds
-every minimum the pair could lower (the chunk's current minima of its vertices, or
-the chunk's global one). The result is bit for bit the unpruned one: such a pair's
+every minimum the pair could lower (the worker's current minima of its vertices, or
+the worker's global one). The result is bit for bit the unpruned one: such a pair's
 computed distance is above those minima, and min is exact. Rounding: the boxes and
 the gap arithmetic err by a few ulps (the projection gap by ~100) of the largest box
 coordinate M, and the distance kernels by at most ~1e-12 relative plus ~1e-13 of the pair's extent
@@ -128,7 +130,7 @@ from numba import njit, prange
 from ...errors import InputError
 from .distance import _ee, _ee_gap, _pe, _pt, _pt_gap
 from .orient import segment_may_meet_triangle_at
-from ..parallel import parallel_kernel, use_parallel
+from ..parallel import claim, parallel_kernel, use_parallel, work_counter
 from ..topology import as_positions, as_topology, sort_segment
 
 #: A grid box spanning more than this many cells beyond its first along an axis is
@@ -208,6 +210,11 @@ _PARALLEL_MIN_ROWS = 2048
 #: at least this many rows each; rows sampled to size the buffer.
 _PAIR_CHUNKS = 256
 _PAIR_CHUNK_MIN_ROWS = 256
+#: Row chunks of the min folds, claimed by the workers one at a time (`_min_rows_py`),
+#: at least this many rows each: small enough that a thread descheduled for a few
+#: milliseconds leaves its share to the others, large enough that claiming costs nothing.
+_MIN_CHUNKS = 256
+_MIN_CHUNK_ROWS = 256
 _SAMPLE_ROWS = 512
 _SAMPLE_MIN_STEP = 8
 #: Buffer slots per chunk: the sampled pairs per row times this, plus a pad.
@@ -288,10 +295,13 @@ def _box_arrays(V_t0, V_t1, T, inflation, corners=False):
 
 
 @njit(cache=True, forceinline=True)
-def _cell(x, o, h):
+def _cell(x, o, inv_h):
     # One formula everywhere: the reference-cell rule needs cells computed
-    # identically in the box ranges and in the pair test.
-    return np.int64(np.floor((x - o) / h))
+    # identically in the box ranges and in the pair test. Monotone in x (a product by
+    # a positive constant rounds monotonically), which is all the grid needs; times the
+    # cell size's reciprocal rather than over the size: six divisions a box were most
+    # of the range pass (issue 13).
+    return np.int64(np.floor((x - o) * inv_h))
 
 
 @njit(cache=True, forceinline=True)
@@ -312,7 +322,7 @@ def _cell_ranges_py(lo, hi, origin, h, clo, chi, top, reach, n_over):
     C = top.shape[0]
     R = n_over.shape[1]
     o0, o1, o2 = origin[0], origin[1], origin[2]
-    h0, h1, h2 = h[0], h[1], h[2]
+    h0, h1, h2 = 1.0 / h[0], 1.0 / h[1], 1.0 / h[2]  # (reciprocals: `_cell`)
     for c in prange(C):
         t0 = t1 = t2 = np.int64(0)
         # Histogram of the boxes by their largest span (capped at R), with the largest
@@ -811,18 +821,24 @@ def _fill_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
 
 def _min_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
               dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off, V,
-              partial, mode):
-    # Chunk c owns rows [c m / C, (c + 1) m / C) and writes only partial[c]:
-    # no shared writes; min is exact, so the result is thread-count independent.
+              partial, mode, n_chunks, counter):
+    # Worker w (one per row of `partial`) claims chunk after chunk of the rows, chunk c
+    # being rows [c m / C, (c + 1) m / C) (`parallel.claim` on `counter`), and folds them
+    # into partial[w] only: no shared writes. min is exact, so which worker takes which
+    # chunk changes the time only, never a bit, at any thread count; a worker whose
+    # thread is descheduled takes fewer chunks instead of holding the region up (a static
+    # split waited for it: 1.07x on the 64K cloth's folds, their slow tail 1.25x).
     J = np.empty(0, dtype=np.int64)
-    n_chunks = partial.shape[0]
     m = loA.shape[0]
-    for c in prange(n_chunks):
+    for w in prange(partial.shape[0]):
         buf = np.empty(_SCAN_BLOCK, dtype=np.int64)
-        for i in range(c * m // n_chunks, (c + 1) * m // n_chunks):
-            _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                       dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
-                       J, 0, 0, V, partial[c], buf)
+        c = claim(counter)
+        while c < n_chunks:
+            for i in range(c * m // n_chunks, (c + 1) * m // n_chunks):
+                _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
+                           dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
+                           J, 0, 0, V, partial[w], buf)
+            c = claim(counter)
 
 
 # Serial and parallel builds of the row passes (each row / chunk writes only its own
@@ -1156,7 +1172,7 @@ def _cell_changes(lo, origin, h, step):
     out = np.zeros(3, dtype=np.int64)
     for j in range(0, lo.shape[0] - 1, step):
         for a in range(3):
-            out[a] += _cell(lo[j, a], origin[a], h[a]) != _cell(lo[j + 1, a], origin[a], h[a])
+            out[a] += _cell(lo[j, a], origin[a], 1.0 / h[a]) != _cell(lo[j + 1, a], origin[a], 1.0 / h[a])
     return out
 
 
@@ -1406,13 +1422,16 @@ class _Plan:
         return cand, float(partial.min())
 
     def min_sq_into(self, V, partial, mode=MODE_MIN):
-        """Fold squared pair distances into `partial` (C, N): per-vertex minima.
+        """Fold squared pair distances into `partial` (W, N): per-vertex minima.
 
-        Chunk c of the rows writes only partial[c]; reduce with min afterwards.
-        With ``MODE_GLOBAL_MIN`` `partial` is (C, 1) and gets each chunk's smallest.
+        Each row of `partial` is one worker's, folding the chunks of the rows it claims
+        (`_min_rows_py`); reduce with min afterwards. With ``MODE_GLOBAL_MIN`` `partial`
+        is (W, 1) and gets each worker's smallest.
         """
         if not self.empty:
-            _min_rows(self.loA.shape[0], *self._args(), V, partial, mode)
+            m = self.loA.shape[0]
+            n_chunks = max(1, min(_MIN_CHUNKS, m // _MIN_CHUNK_ROWS))
+            _min_rows(m, *self._args(), V, partial, mode, n_chunks, work_counter())
 
 
 # --- public functions ---------------------------------------------------------
@@ -1636,8 +1655,9 @@ def fold_min_sq(x, TA, TB, inflation, partial, self_query, cells="cube"):
         Primitives (rows of vertex indices); with `self_query` `TB` must be `TA`.
     inflation : float >= 0
         Box inflation: pairs farther apart than ``2 * inflation`` may be skipped.
-    partial : (C, N) float64
-        Row c receives chunk c's minima; reduce with ``min`` afterwards.
+    partial : (W, N) float64
+        Row w receives worker w's minima (`_Plan.min_sq_into`); reduce with ``min``
+        afterwards.
     self_query : bool
     cells : str
         Cell shape of the grid (`CELL_SHAPES`, `choose_cells`): the time, never the result.

@@ -46,8 +46,9 @@ per step, and that is what happens: benchmarks/bench_neighbours.py, BENCHMARKS.m
 `NeighbourList.info` reports the skin, the builds, reuses and fresh queries.
 
 Parallel and deterministic: a listed query folds the listed pairs' squared distances
-into per-chunk minima (a ``prange`` over chunks of the row-ordered pairs, each with its
-own row of minima, reduced by ``min``), skipping a pair whose box gap at the query state
+into per-worker minima (a ``prange`` over workers, one per thread, each with its own
+row of minima, reduced by ``min``, claiming chunks of the row-ordered pairs one after
+another: `parallel.claim`), skipping a pair whose box gap at the query state
 provably exceeds every minimum it could lower, as the grid's folds do (`broad_phase`:
 the same bound and rounding slack, so the minima are those of every pair). No shared
 writes, and ``min`` is exact, so results do not depend on the thread count. (Evaluating
@@ -63,7 +64,7 @@ from numba import njit, prange
 
 from .broad_phase import _PRUNE_SLACK, _box_arrays, _gap_sq, _Plan, fold_pair_min
 from .distance import edge_edge_sq, point_triangle_sq
-from ..parallel import parallel_kernel
+from ..parallel import claim, parallel_kernel, work_counter
 from ...errors import InputError
 from ..topology import as_positions, as_topology, scene_edges
 
@@ -91,6 +92,10 @@ _PAD_REL = 1e-14
 #: magnitudes (forming the centred residual in float64 costs a few ulps of them;
 #: 1e-12 is ~4500 ulps).
 _AFFINE_PAD_REL = 1e-12
+#: Chunks of the listed pairs that a listed query's workers claim (`_listed_min_py`), at
+#: least this many pairs each.
+_LISTED_CHUNKS = 256
+_LISTED_CHUNK_PAIRS = 1024
 #: Smallest eigenvalue ratio of the centred second moments for the affine bound.
 _AFFINE_RCOND = 1e-10
 
@@ -107,20 +112,24 @@ def _vf_sq_py(x, F, P, out):
         out[k] = point_triangle_sq(x[v], x[F[f, 0]], x[F[f, 1]], x[F[f, 2]])
 
 
-def _listed_min_py(x, TA, TB, P, partial, gap_off):
-    # Chunk c of the pairs (in row order) folds their squared distances into partial[c]
-    # (min is exact: any chunking or thread count gives the same minima). A pair whose
-    # box gap bound (`broad_phase._gap_sq`, reduced by the rounding slack `gap_off`)
+def _listed_min_py(x, TA, TB, P, partial, gap_off, n_chunks, counter):
+    # Worker w (a row of `partial`) claims chunk after chunk of the pairs (in row order,
+    # `parallel.claim`) and folds their squared distances into partial[w] (min is exact:
+    # any chunking, claiming or thread count gives the same minima). A pair whose box
+    # gap bound (`broad_phase._gap_sq`, reduced by the rounding slack `gap_off`)
     # provably exceeds every minimum it could lower is skipped, as in the grid's folds.
-    n_chunks = partial.shape[0]
     m = P.shape[0]
-    for c in prange(n_chunks):
-        dmin = partial[c]
-        for q in range(c * m // n_chunks, (c + 1) * m // n_chunks):
-            i, j = P[q, 0], P[q, 1]
-            lx, ly, lz, hx, hy, hz = _prim_box(x, TA, i)
-            m0, m1, m2, M0, M1, M2 = _prim_box(x, TB, j)
-            fold_pair_min(x, TA, i, TB, j, dmin, _gap_sq(lx, ly, lz, hx, hy, hz, m0, m1, m2, M0, M1, M2, gap_off))
+    for w in prange(partial.shape[0]):
+        dmin = partial[w]
+        c = claim(counter)
+        while c < n_chunks:
+            for q in range(c * m // n_chunks, (c + 1) * m // n_chunks):
+                i, j = P[q, 0], P[q, 1]
+                lx, ly, lz, hx, hy, hz = _prim_box(x, TA, i)
+                m0, m1, m2, M0, M1, M2 = _prim_box(x, TB, j)
+                fold_pair_min(x, TA, i, TB, j, dmin,
+                              _gap_sq(lx, ly, lz, hx, hy, hz, m0, m1, m2, M0, M1, M2, gap_off))
+            c = claim(counter)
 
 
 @njit(cache=True, inline="always")
@@ -490,10 +499,10 @@ class NeighbourList:
         # minima from the cap, as `per_vertex_separation`: the same capped result
         partial = start_minima(x.shape[0], radius)
         gap_off = -_PRUNE_SLACK * (float(np.abs(x).max()) if x.size else 0.0)
-        if self.P_ee.shape[0]:
-            _listed_min(self.P_ee.shape[0], x, self.E, self.E, self.P_ee, partial, gap_off)
-        if self.P_vf.shape[0]:
-            _listed_min(self.P_vf.shape[0], x, self._V, self.F, self.P_vf, partial, gap_off)
+        for P, TA, TB in ((self.P_ee, self.E, self.E), (self.P_vf, self._V, self.F)):
+            if P.shape[0]:
+                n_chunks = max(1, min(_LISTED_CHUNKS, P.shape[0] // _LISTED_CHUNK_PAIRS))
+                _listed_min(P.shape[0], x, TA, TB, P, partial, gap_off, n_chunks, work_counter())
         return capped_separations(partial, radius)
 
     def pairs(self, x, radius) -> dict:

@@ -46,7 +46,7 @@ from ...errors import InputError
 from ..topology import separation_vertices
 from .broad_phase import _box_arrays, _Plan, choose_cells, fold_min_sq
 
-#: Cap on the per-chunk partial minima, in float64 entries (32 MiB).
+#: Cap on the per-worker partial minima, in float64 entries (32 MiB).
 _PARTIAL_ENTRIES_MAX = 1 << 22
 #: Rounding allowance of a query at a reach below its radius, relative to the reach
 #: plus the largest coordinate: a vertex whose minimum comes within it of the reach
@@ -73,14 +73,15 @@ def _cap_sq(radius):
 
 
 def partial_chunks(n) -> int:
-    """Rows of per-chunk partial minima for `n` vertices: min is exact, so the chunk
-    count may follow the thread count (a few chunks per thread for balance) without
-    changing a single bit; capped at `_PARTIAL_ENTRIES_MAX` entries."""
-    return max(1, min(REDUCTION_CHUNKS, 4 * numba.get_num_threads(), _PARTIAL_ENTRIES_MAX // max(n, 1)))
+    """Rows of per-worker partial minima for `n` vertices, one per thread: the folds'
+    workers claim their chunks of work as they go (`broad_phase._min_rows_py`), and min
+    is exact, so the row count changes not a single bit; capped at `_PARTIAL_ENTRIES_MAX`
+    entries."""
+    return max(1, min(REDUCTION_CHUNKS, numba.get_num_threads(), _PARTIAL_ENTRIES_MAX // max(n, 1)))
 
 
 def start_minima(n, radius) -> np.ndarray:
-    """(chunks, n) per-chunk partial minima of squared distances, each at the cap
+    """(workers, n) per-worker partial minima of squared distances, each at the cap
     radius**2 (`_cap_sq`) instead of inf: the result is min(sqrt(.), radius), so it is
     unchanged, and a fold can skip every pair that provably lies beyond the radius."""
     return np.full((partial_chunks(n), n), _cap_sq(radius))

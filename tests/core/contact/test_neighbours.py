@@ -208,6 +208,22 @@ def test_identical_for_one_and_two_threads(force_parallel, monkeypatch, compact)
     np.testing.assert_array_equal(a[0], a[2])
 
 
+@pytest.mark.parametrize("chunk_pairs, max_chunks", [(1, 10**9), (10**9, 1)], ids=["one-pair-chunks", "one-chunk"])
+def test_listed_fold_claims_chunks_with_the_same_bits(force_parallel, monkeypatch, chunk_pairs, max_chunks):
+    # A listed query's workers claim chunks of the listed pairs as they go: any chunking,
+    # 1 or 2 threads, the same bits as a fresh query.
+    monkeypatch.setattr(nbm, "_LISTED_CHUNK_PAIRS", chunk_pairs)
+    monkeypatch.setattr(nbm, "_LISTED_CHUNKS", max_chunks)
+    V, F = sheet(20, np.random.default_rng(4))
+    _, E, F = scene_arrays(V, None, F)
+    want = per_vertex_separation(V, E, F, 0.03)
+    for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+        numba.set_num_threads(threads)
+        nl = NeighbourList(E, F, skin=0.01)
+        nl.pairs(V, 0.03)  # built: the next query is answered from the list
+        np.testing.assert_array_equal(nl.listed_separations(V, 0.03), want)
+
+
 @pytest.mark.parametrize("case", ["nan", "wrong-n", "negative-radius"])
 def test_bad_queries_raise_input_error(case):
     from penfree import NeighbourList as Public

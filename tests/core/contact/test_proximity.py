@@ -51,6 +51,32 @@ def test_same_bits_as_the_unpruned_fold(rng, monkeypatch, radius, offset):
         np.testing.assert_array_equal(got.view(np.uint64), want.view(np.uint64))
 
 
+@pytest.mark.parametrize("chunk_rows, max_chunks", [(1, 10**9), (7, 3), (10**9, 1)],
+                         ids=["one-row-chunks", "three-chunks", "one-chunk"])
+@pytest.mark.parametrize("workers", [1, 2, 3])
+def test_claimed_chunks_give_the_same_bits(rng, monkeypatch, chunk_rows, max_chunks, workers):
+    # The folds' workers (rows of the partial minima) claim chunks of rows as they go:
+    # any chunking, any number of workers, 1 or 2 threads, the parallel build even on
+    # this small scene: the same bits as the unpruned fold.
+    import numba
+
+    V, F = _sheet(14, rng)
+    E = edges_from_faces(F)
+    want = _unpruned(V, E, F, 0.02, monkeypatch)
+    monkeypatch.setattr(bp, "_MIN_CHUNK_ROWS", chunk_rows)
+    monkeypatch.setattr(bp, "_MIN_CHUNKS", max_chunks)
+    monkeypatch.setattr(bp._min_rows, "min_work", 0)
+    monkeypatch.setattr(proximity, "partial_chunks", lambda n: workers)
+    old = numba.get_num_threads()
+    try:
+        for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+            numba.set_num_threads(threads)
+            got = per_vertex_separation(V, E, F, 0.02)
+            np.testing.assert_array_equal(got.view(np.uint64), want.view(np.uint64))
+    finally:
+        numba.set_num_threads(old)
+
+
 def test_matches_exact_brute_force(rng):
     from fractions import Fraction
 
