@@ -162,6 +162,8 @@ class DependencyStampLocator(caching._CacheLocator):
     def __init__(self, inner, stamp):
         self._inner = inner
         self._stamp = stamp
+        # Numba's warning about a kernel it cannot cache (dynamic globals) names this file.
+        self._py_file = getattr(inner, "_py_file", None)
 
     def ensure_cache_path(self):
         self._inner.ensure_cache_path()

@@ -161,8 +161,10 @@ def claim(typingctx, counter):
 
 
 def work_counter():
-    """A fresh counter for `claim` (one per kernel call)."""
-    return np.zeros(1, dtype=np.int64)
+    """A fresh counter for `claim` (one per kernel call): ``[0, workers]``, the workers
+    being the calling thread's Numba thread count (a kernel's ``prange`` over them; read
+    inside a kernel, the count would make it uncachable: a dynamic global)."""
+    return np.array([0, thread_count()], dtype=np.int64)
 
 
 def _specialisations(kernel) -> int:

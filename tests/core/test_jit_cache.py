@@ -181,3 +181,25 @@ def test_a_kernel_recompiles_when_a_function_it_inlined_changes(tmp_path, cache_
     assert list(where.rglob("a.f-*.nbi"))
     if user_dir is not None:
         assert not list(root.rglob("*.nbi"))
+
+
+def test_a_kernel_that_cannot_be_cached_warns_and_runs(tmp_path):
+    # A kernel with a dynamic global (Numba's thread count read inside it) cannot be
+    # cached: Numba warns, naming the file, through the locator, and runs it uncached.
+    root = tmp_path / "src"
+    _write_package(root / "pk", {
+        "__init__.py": "",
+        "a.py": """
+            import numba
+            from numba import njit
+            @njit(cache=True)
+            def f():
+                return 0 * numba.get_num_threads() + 7
+        """,
+    })
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "NUMBA_DISABLE_JIT")}
+    env["PYTHONPATH"] = os.pathsep.join([str(root), str(PKG.parent)])
+    out = subprocess.run([sys.executable, "-c", _RUN, str(root)], capture_output=True, text=True, cwd=root, env=env)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == {"value": 7, "hits": 0}
+    assert "Cannot cache compiled function" in out.stderr and "a.py" in out.stderr

@@ -236,7 +236,7 @@ _PRUNE_SLACK = 1e-9
 _PRUNE_REL = 1.0 - 1e-9
 
 
-def _boxes_py(V_t0, V_t1, T, inflation, lo, hi, corners):
+def _boxes_py(V_t0, V_t1, T, inflation, lo, hi, corners, counter):
     # Chunk c of corners.shape[0] makes the boxes [c m / C, (c + 1) m / C) and keeps their
     # bounding corners as `_corners_py` does (`_box_arrays`' corners, which `_Plan` would
     # otherwise read the boxes again for). Each box writes its own rows and min / max are
@@ -246,38 +246,42 @@ def _boxes_py(V_t0, V_t1, T, inflation, lo, hi, corners):
     # A NaN or infinite coordinate makes its box NaN (min and max would pass a NaN
     # by; the sum of the coordinates does not, nor does it overflow below ~1e307):
     # the chunk's flag (`corners[c, 2, 0]`) is then NaN, and `_checked_corners` refuses it
-    # before any grid is sized.
+    # before any grid is sized. The workers claim the chunks one after another
+    # (`parallel.claim`): a late thread leaves its share to the others.
     m = T.shape[0]
     C = corners.shape[0]
-    for c in prange(C):
-        # the chunk's corners in registers (stores into `corners` per box, which may
-        # alias the boxes for all LLVM knows, made the 64K cloth's pass 1.2-1.5x slower)
-        c0, c1, c2 = np.inf, np.inf, np.inf
-        d0, d1, d2 = -np.inf, -np.inf, -np.inf
-        bad = 0.0
-        for i in range(c * m // C, (c + 1) * m // C):
-            mn0, mn1, mn2 = np.inf, np.inf, np.inf
-            mx0, mx1, mx2 = -np.inf, -np.inf, -np.inf
-            acc = 0.0
-            for k in range(T.shape[1]):
-                v = T[i, k]
-                p0, p1, p2 = V_t0[v, 0], V_t0[v, 1], V_t0[v, 2]
-                q0, q1, q2 = V_t1[v, 0], V_t1[v, 1], V_t1[v, 2]
-                mn0, mn1, mn2 = min(mn0, p0, q0), min(mn1, p1, q1), min(mn2, p2, q2)
-                mx0, mx1, mx2 = max(mx0, p0, q0), max(mx1, p1, q1), max(mx2, p2, q2)
-                acc += (p0 + q0) + (p1 + q1) + (p2 + q2)
-            l0, l1, l2 = mn0 - inflation, mn1 - inflation, mn2 - inflation
-            h0, h1, h2 = mx0 + inflation, mx1 + inflation, mx2 + inflation
-            lo[i, 0], lo[i, 1], lo[i, 2] = l0, l1, l2
-            hi[i, 0], hi[i, 1], hi[i, 2] = h0, h1, h2
-            c0, c1, c2 = min(c0, l0), min(c1, l1), min(c2, l2)
-            d0, d1, d2 = max(d0, h0), max(d1, h1), max(d2, h2)
-            if not (acc - acc == 0.0):
-                lo[i, 0] = np.nan
-                bad = np.nan
-        corners[c, 0, 0], corners[c, 0, 1], corners[c, 0, 2] = c0, c1, c2
-        corners[c, 1, 0], corners[c, 1, 1], corners[c, 1, 2] = d0, d1, d2
-        corners[c, 2, 0] = bad
+    for w in prange(min(C, counter[1])):
+        c = claim(counter)
+        while c < C:
+            # the chunk's corners in registers (stores into `corners` per box, which may
+            # alias the boxes for all LLVM knows, made the 64K cloth's pass 1.2-1.5x slower)
+            c0, c1, c2 = np.inf, np.inf, np.inf
+            d0, d1, d2 = -np.inf, -np.inf, -np.inf
+            bad = 0.0
+            for i in range(c * m // C, (c + 1) * m // C):
+                mn0, mn1, mn2 = np.inf, np.inf, np.inf
+                mx0, mx1, mx2 = -np.inf, -np.inf, -np.inf
+                acc = 0.0
+                for k in range(T.shape[1]):
+                    v = T[i, k]
+                    p0, p1, p2 = V_t0[v, 0], V_t0[v, 1], V_t0[v, 2]
+                    q0, q1, q2 = V_t1[v, 0], V_t1[v, 1], V_t1[v, 2]
+                    mn0, mn1, mn2 = min(mn0, p0, q0), min(mn1, p1, q1), min(mn2, p2, q2)
+                    mx0, mx1, mx2 = max(mx0, p0, q0), max(mx1, p1, q1), max(mx2, p2, q2)
+                    acc += (p0 + q0) + (p1 + q1) + (p2 + q2)
+                l0, l1, l2 = mn0 - inflation, mn1 - inflation, mn2 - inflation
+                h0, h1, h2 = mx0 + inflation, mx1 + inflation, mx2 + inflation
+                lo[i, 0], lo[i, 1], lo[i, 2] = l0, l1, l2
+                hi[i, 0], hi[i, 1], hi[i, 2] = h0, h1, h2
+                c0, c1, c2 = min(c0, l0), min(c1, l1), min(c2, l2)
+                d0, d1, d2 = max(d0, h0), max(d1, h1), max(d2, h2)
+                if not (acc - acc == 0.0):
+                    lo[i, 0] = np.nan
+                    bad = np.nan
+            corners[c, 0, 0], corners[c, 0, 1], corners[c, 0, 2] = c0, c1, c2
+            corners[c, 1, 0], corners[c, 1, 1], corners[c, 1, 2] = d0, d1, d2
+            corners[c, 2, 0] = bad
+            c = claim(counter)
 
 
 _boxes = parallel_kernel(_boxes_py, "_bp_boxes")
@@ -290,7 +294,7 @@ def _box_arrays(V_t0, V_t1, T, inflation, corners=False):
     lo = np.empty((T.shape[0], 3))
     hi = np.empty((T.shape[0], 3))
     parts = np.empty((_STAT_CHUNKS, 3, 3))
-    _boxes(T.shape[0], V_t0, V_t1, T, float(inflation), lo, hi, parts)
+    _boxes(T.shape[0], V_t0, V_t1, T, float(inflation), lo, hi, parts, work_counter())
     return (lo, hi, _checked_corners(parts)) if corners else (lo, hi)
 
 
@@ -312,7 +316,7 @@ def _bucket(key, bits):
     return np.int64((np.uint64(key) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits))
 
 
-def _cell_ranges_py(lo, hi, origin, h, clo, chi, top, reach, n_over):
+def _cell_ranges_py(lo, hi, origin, h, clo, chi, top, reach, n_over, counter):
     # Cell ranges of the boxes. Chunk c of STAT_CHUNKS keeps its largest chi per axis in
     # top[c]; for r = 1 .. R - 1 (slot 0 unused: the reach is at least 1), the number of
     # its boxes spanning more than r cells beyond their first along some axis in
@@ -323,41 +327,44 @@ def _cell_ranges_py(lo, hi, origin, h, clo, chi, top, reach, n_over):
     R = n_over.shape[1]
     o0, o1, o2 = origin[0], origin[1], origin[2]
     h0, h1, h2 = 1.0 / h[0], 1.0 / h[1], 1.0 / h[2]  # (reciprocals: `_cell`)
-    for c in prange(C):
-        t0 = t1 = t2 = np.int64(0)
-        # Histogram of the boxes by their largest span (capped at R), with the largest
-        # per-axis spans in each bin, in locals: reach and n_over follow from it (the
-        # per-box updates of the shared arrays could not stay in registers).
-        rr = np.zeros((R + 1, 3), dtype=np.int64)
-        nn = np.zeros(R + 1, dtype=np.int64)
-        for i in range(c * m // C, (c + 1) * m // C):
-            a0 = _cell(lo[i, 0], o0, h0)
-            a1 = _cell(lo[i, 1], o1, h1)
-            a2 = _cell(lo[i, 2], o2, h2)
-            b0 = _cell(hi[i, 0], o0, h0)
-            b1 = _cell(hi[i, 1], o1, h1)
-            b2 = _cell(hi[i, 2], o2, h2)
-            clo[i, 0], clo[i, 1], clo[i, 2] = a0, a1, a2
-            chi[i, 0], chi[i, 1], chi[i, 2] = b0, b1, b2
-            t0 = max(t0, b0)
-            t1 = max(t1, b1)
-            t2 = max(t2, b2)
-            s0, s1, s2 = b0 - a0, b1 - a1, b2 - a2
-            s = min(max(s0, s1, s2), R)
-            nn[s] += 1
-            rr[s, 0] = max(rr[s, 0], s0)
-            rr[s, 1] = max(rr[s, 1], s1)
-            rr[s, 2] = max(rr[s, 2], s2)
-        top[c, 0] = max(top[c, 0], t0)
-        top[c, 1] = max(top[c, 1], t1)
-        top[c, 2] = max(top[c, 2], t2)
-        for r in range(1, R):
-            for k in range(R + 1):
-                if k > r:
-                    n_over[c, r] += nn[k]
-                else:
-                    for a in range(3):
-                        reach[c, r, a] = max(reach[c, r, a], rr[k, a])
+    for w in prange(min(C, counter[1])):  # chunks claimed (`parallel.claim`)
+        c = claim(counter)
+        while c < C:
+            t0 = t1 = t2 = np.int64(0)
+            # Histogram of the boxes by their largest span (capped at R), with the largest
+            # per-axis spans in each bin, in locals: reach and n_over follow from it (the
+            # per-box updates of the shared arrays could not stay in registers).
+            rr = np.zeros((R + 1, 3), dtype=np.int64)
+            nn = np.zeros(R + 1, dtype=np.int64)
+            for i in range(c * m // C, (c + 1) * m // C):
+                a0 = _cell(lo[i, 0], o0, h0)
+                a1 = _cell(lo[i, 1], o1, h1)
+                a2 = _cell(lo[i, 2], o2, h2)
+                b0 = _cell(hi[i, 0], o0, h0)
+                b1 = _cell(hi[i, 1], o1, h1)
+                b2 = _cell(hi[i, 2], o2, h2)
+                clo[i, 0], clo[i, 1], clo[i, 2] = a0, a1, a2
+                chi[i, 0], chi[i, 1], chi[i, 2] = b0, b1, b2
+                t0 = max(t0, b0)
+                t1 = max(t1, b1)
+                t2 = max(t2, b2)
+                s0, s1, s2 = b0 - a0, b1 - a1, b2 - a2
+                s = min(max(s0, s1, s2), R)
+                nn[s] += 1
+                rr[s, 0] = max(rr[s, 0], s0)
+                rr[s, 1] = max(rr[s, 1], s1)
+                rr[s, 2] = max(rr[s, 2], s2)
+            top[c, 0] = max(top[c, 0], t0)
+            top[c, 1] = max(top[c, 1], t1)
+            top[c, 2] = max(top[c, 2], t2)
+            for r in range(1, R):
+                for k in range(R + 1):
+                    if k > r:
+                        n_over[c, r] += nn[k]
+                    else:
+                        for a in range(3):
+                            reach[c, r, a] = max(reach[c, r, a], rr[k, a])
+            c = claim(counter)
 
 
 _cell_ranges_k = parallel_kernel(_cell_ranges_py, "_bp_cell_ranges")
@@ -371,28 +378,37 @@ def _cell_ranges(lo, hi, origin, h, clo, chi, max_reach=_MAX_REACH):
     top = np.zeros((_STAT_CHUNKS, 3), dtype=np.int64)
     reach = np.zeros((_STAT_CHUNKS, max_reach + 1, 3), dtype=np.int64)
     n_over = np.zeros((_STAT_CHUNKS, max_reach + 1), dtype=np.int64)
-    _cell_ranges_k(lo.shape[0], lo, hi, origin, h, clo, chi, top, reach, n_over)
+    _cell_ranges_k(lo.shape[0], lo, hi, origin, h, clo, chi, top, reach, n_over, work_counter())
     return top.max(axis=0), reach.max(axis=0), n_over.sum(axis=0)
 
 
-def _small_rows_py(clo, chi, reach, max_span, max_cells, small, n_big, n_cells):
+def _small_rows_py(clo, chi, reach, max_span, max_cells, small, n_big, n_cells, counter):
     # small[i]: box i spans at most max_span cells beyond its first along every axis and
     # its scan region (its cells, `reach` more below) has at most max_cells cells; chunk c
     # of STAT_CHUNKS counts the others in n_big[c] and the small ones' cells in n_cells[c].
     m = clo.shape[0]
     C = n_big.shape[0]
-    for c in prange(C):
-        for i in range(c * m // C, (c + 1) * m // C):
-            ok = True
-            cells = np.int64(1)
-            for a in range(3):
-                span = chi[i, a] - clo[i, a]
-                ok &= span <= max_span
-                cells *= min(span + 1 + reach[a], max_cells + 1)  # capped: no overflow
-            ok &= cells <= max_cells
-            small[i] = ok
-            n_big[c] += not ok
-            n_cells[c] += cells if ok else 0
+    for w in prange(min(C, counter[1])):  # chunks claimed (`parallel.claim`)
+        c = claim(counter)
+        while c < C:
+            # counts in locals: workers interleave chunks, and per-box updates of
+            # n_big[c] shared a cache line with the other worker's chunk (3x slower)
+            big = np.int64(0)
+            total = np.int64(0)
+            for i in range(c * m // C, (c + 1) * m // C):
+                ok = True
+                cells = np.int64(1)
+                for a in range(3):
+                    span = chi[i, a] - clo[i, a]
+                    ok &= span <= max_span
+                    cells *= min(span + 1 + reach[a], max_cells + 1)  # capped: no overflow
+                ok &= cells <= max_cells
+                small[i] = ok
+                big += not ok
+                total += cells if ok else 0
+            n_big[c] += big
+            n_cells[c] += total
+            c = claim(counter)
 
 
 _small_rows_k = parallel_kernel(_small_rows_py, "_bp_small_rows")
@@ -405,12 +421,12 @@ def _small_rows(clo, chi, reach, max_span, max_cells):
     n_big = np.zeros(_STAT_CHUNKS, dtype=np.int64)
     n_cells = np.zeros(_STAT_CHUNKS, dtype=np.int64)
     _small_rows_k(clo.shape[0], clo, chi, np.asarray(reach, dtype=np.int64), np.int64(max_span),
-                  np.int64(max_cells), small, n_big, n_cells)
+                  np.int64(max_cells), small, n_big, n_cells, work_counter())
     return small, int(n_big.sum()), int(n_cells.sum())
 
 
 def _grid_pass_py(clo, chi, small, covering, dims, bits, lo, hi, bounds, slots, fill, ent_key, ent_id, ent_box,
-                  ent_clo):
+                  ent_clo, counter):
     # Chunk c enters boxes [bounds[c], bounds[c + 1]): each in every cell it covers
     # (`covering`), else once, in the cell of its lower corner. Without `fill` it counts
     # them per bucket into its own column of `slots` (nb, C); with it, it writes them at
@@ -418,29 +434,33 @@ def _grid_pass_py(clo, chi, small, covering, dims, bits, lo, hi, bounds, slots, 
     # serial pass in id order. No shared writes either way.
     d0 = dims[0]
     d01 = dims[0] * dims[1]
-    for c in prange(bounds.shape[0] - 1):
-        for j in range(bounds[c], bounds[c + 1]):
-            if not small[j]:
-                continue
-            top = chi[j] if covering else clo[j]
-            for z in range(clo[j, 2], top[2] + 1):
-                for y in range(clo[j, 1], top[1] + 1):
-                    base = d0 * y + d01 * z
-                    for x in range(clo[j, 0], top[0] + 1):
-                        key = base + x
-                        b = _bucket(key, bits)
-                        f = slots[b, c]
-                        slots[b, c] = f + 1
-                        if not fill:
-                            continue
-                        if bits >= 0:
-                            ent_key[f] = key
-                        ent_id[f] = j
-                        for a in range(3):
-                            ent_box[f, a] = lo[j, a]
-                            ent_box[f, 3 + a] = hi[j, a]
-                            if covering:
-                                ent_clo[f, a] = clo[j, a]
+    C = bounds.shape[0] - 1
+    for w in prange(min(C, counter[1])):  # chunks claimed (`parallel.claim`)
+        c = claim(counter)
+        while c < C:
+            for j in range(bounds[c], bounds[c + 1]):
+                if not small[j]:
+                    continue
+                top = chi[j] if covering else clo[j]
+                for z in range(clo[j, 2], top[2] + 1):
+                    for y in range(clo[j, 1], top[1] + 1):
+                        base = d0 * y + d01 * z
+                        for x in range(clo[j, 0], top[0] + 1):
+                            key = base + x
+                            b = _bucket(key, bits)
+                            f = slots[b, c]
+                            slots[b, c] = f + 1
+                            if not fill:
+                                continue
+                            if bits >= 0:
+                                ent_key[f] = key
+                            ent_id[f] = j
+                            for a in range(3):
+                                ent_box[f, a] = lo[j, a]
+                                ent_box[f, 3 + a] = hi[j, a]
+                                if covering:
+                                    ent_clo[f, a] = clo[j, a]
+            c = claim(counter)
 
 
 @njit(cache=True)
@@ -487,7 +507,7 @@ def _build_grid(clo, chi, small, covering, dims, bits, nb, lo, hi, chunks=None):
     counts = np.zeros((nb, C), dtype=np.int64)
     _grid_pass(n, clo, chi, small, covering, dims, bits, lo, hi, bounds, counts, False,
                np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int32), np.empty((0, 6)),
-               np.empty((0, 3), dtype=np.int32))
+               np.empty((0, 3), dtype=np.int32), work_counter())
     boff = _grid_offsets(counts)
     m = int(boff[nb])
     # Keys only for a hashed table: a dense one has one cell per bucket.
@@ -504,7 +524,7 @@ def _build_grid(clo, chi, small, covering, dims, bits, nb, lo, hi, chunks=None):
     # A covering grid's lower cell corners, for its emit-once rule without a division per pair.
     ent_clo = np.empty((m if covering else 0, 3), dtype=np.int32)
     _grid_pass(n, clo, chi, small, covering, dims, bits, lo, hi, bounds, counts, True, ent_key, ent_id, ent_box,
-               ent_clo)
+               ent_clo, work_counter())
     return boff, ent_key, ent_id, ent_box, ent_clo
 
 
