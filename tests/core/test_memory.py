@@ -35,3 +35,34 @@ def test_without_glibc_nothing_changes(monkeypatch):
     assert memory.retain_freed_memory() is False
     monkeypatch.setattr(memory.sys, "platform", "darwin")
     assert memory.retain_freed_memory() is False
+
+
+@pytest.mark.parametrize("shape, dtype", [((3, 4), np.float64), ((2, 1 << 20, 3), np.float32), ((0, 5), np.int64),
+                                          ((5 << 20,), np.float64)])
+def test_populated_empty_is_a_writable_array_of_the_shape(shape, dtype):
+    # Small arrays are np.empty; from POPULATE_MIN_BYTES on (the last two) on Linux, a
+    # populated anonymous mapping: either way writable, C-contiguous, and it keeps what
+    # is written for as long as it lives, views included.
+    a = memory.populated_empty(shape, dtype)
+    assert a.shape == shape and a.dtype == dtype and a.flags.c_contiguous and a.flags.writeable
+    a[...] = np.arange(a.size, dtype=dtype).reshape(shape)
+    view = a.reshape(-1)[::7]
+    del a
+    np.testing.assert_array_equal(view, np.arange(0, view.size * 7, 7, dtype=dtype))
+    big = np.prod(shape) * np.dtype(dtype).itemsize >= memory.POPULATE_MIN_BYTES
+    owner = view
+    while isinstance(owner, np.ndarray) and owner.base is not None:
+        owner = owner.base
+    owner = owner.obj if isinstance(owner, memoryview) else owner
+    if big and sys.platform.startswith("linux"):
+        import mmap
+
+        assert isinstance(owner, mmap.mmap)  # the pages come from the mapping
+    else:
+        assert isinstance(owner, np.ndarray)
+
+
+def test_populated_empty_falls_back_without_the_mapping(monkeypatch):
+    monkeypatch.delattr(memory.mmap, "MAP_POPULATE", raising=False)
+    a = memory.populated_empty((5 << 20,), np.float64)
+    assert a.shape == (5 << 20,) and a.flags.writeable and a.flags.owndata

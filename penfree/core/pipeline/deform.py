@@ -24,6 +24,7 @@ from ..verify.gate import StepGate, deform_margin
 from ..verify.path import SceneTopology, check_thickness
 from ..trust.stats import compute_stats, residual_summary
 from ..fit.step import fit_step
+from ..memory import populated_empty
 from .strategy import make_strategy, step_input, with_shortened
 
 
@@ -179,7 +180,7 @@ def _allocate(seq, S_idx, per_vertex) -> dict:
         "frame": S_idx,
         "A": np.empty((S, 3, 3)),
         "b": np.empty((S, 3)),
-        "deformed": np.empty((S, N, 3), dtype=seq.positions.dtype),
+        "deformed": populated_empty((S, N, 3), seq.positions.dtype),  # filled step by step: no page faults
         "model": np.empty(S, dtype=object),
         "projection": np.empty(S, dtype=object),
         "certificate_margin": np.empty(S),
@@ -192,8 +193,9 @@ def _allocate(seq, S_idx, per_vertex) -> dict:
             for agg in ("rms", "max"):
                 out[f"{who}_{tgt}_{agg}"] = np.full(S, np.nan)
     if per_vertex:
-        out["residual_pred_per_vertex"] = np.empty((S, N), dtype=np.float32)
-        out["residual_next_per_vertex"] = np.full((S, N), np.nan, dtype=np.float32)
+        out["residual_pred_per_vertex"] = populated_empty((S, N), np.float32)
+        out["residual_next_per_vertex"] = populated_empty((S, N), np.float32)
+        out["residual_next_per_vertex"].fill(np.nan)
     return out
 
 
