@@ -137,14 +137,19 @@ print(json.dumps({"value": value, "hits": sum(pk.a.f.stats.cache_hits.values())}
 """
 
 
-def _run(root: Path, cache_dir: Path | None) -> dict:
+def _process(root: Path, cache_dir: Path | None) -> subprocess.CompletedProcess:
     """One fresh process: install the locator for `root/pk`, call ``pk.a.f``."""
     env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "NUMBA_DISABLE_JIT")}
     env["PYTHONPATH"] = os.pathsep.join([str(root), str(PKG.parent)])
     if cache_dir is not None:
         env["NUMBA_CACHE_DIR"] = str(cache_dir)
-    out = subprocess.run([sys.executable, "-c", _RUN, str(root)], check=True, capture_output=True, text=True,
-                         cwd=root, env=env)
+    return subprocess.run([sys.executable, "-c", _RUN, str(root)], capture_output=True, text=True, cwd=root, env=env)
+
+
+def _run(root: Path, cache_dir: Path | None) -> dict:
+    """`_process`'s printed value and cache hits (it must succeed)."""
+    out = _process(root, cache_dir)
+    assert out.returncode == 0, out.stderr
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -197,9 +202,7 @@ def test_a_kernel_that_cannot_be_cached_warns_and_runs(tmp_path):
                 return 0 * numba.get_num_threads() + 7
         """,
     })
-    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "NUMBA_DISABLE_JIT")}
-    env["PYTHONPATH"] = os.pathsep.join([str(root), str(PKG.parent)])
-    out = subprocess.run([sys.executable, "-c", _RUN, str(root)], capture_output=True, text=True, cwd=root, env=env)
+    out = _process(root, None)
     assert out.returncode == 0, out.stderr
     assert json.loads(out.stdout.strip().splitlines()[-1]) == {"value": 7, "hits": 0}
     assert "Cannot cache compiled function" in out.stderr and "a.py" in out.stderr
