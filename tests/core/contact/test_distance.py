@@ -336,3 +336,100 @@ def test_gap_bounds_prove_nothing_out_of_range():
         g = _gaps(base * scale)
         assert np.all(g == 0.0), scale
     assert np.all(_gaps(base) > 0.0)
+
+
+# The kernels as they were written before their clamps and interior tests looked at the
+# numerators first (issue 13): dividing first, every case. The new form must give the
+# same bits on every input, the boundary cases included.
+@njit
+def _pp_div(px, py, pz, qx, qy, qz):
+    dx, dy, dz = px - qx, py - qy, pz - qz
+    return dx * dx + dy * dy + dz * dz
+
+
+@njit
+def _pe_div(px, py, pz, ax, ay, az, bx, by, bz):
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    L2 = dx * dx + dy * dy + dz * dz
+    if L2 == 0.0:
+        return _pp_div(px, py, pz, ax, ay, az)
+    wx, wy, wz = px - ax, py - ay, pz - az
+    t = (wx * dx + wy * dy + wz * dz) / L2
+    if t <= 0.0:
+        return _pp_div(px, py, pz, ax, ay, az)
+    if t >= 1.0:
+        return _pp_div(px, py, pz, bx, by, bz)
+    cx, cy, cz = wy * dz - wz * dy, wz * dx - wx * dz, wx * dy - wy * dx
+    return (cx * cx + cy * cy + cz * cz) / L2
+
+
+@njit
+def _ee_div(a0, a1, b0, b1):
+    best = min(_pe_div(a0[0], a0[1], a0[2], b0[0], b0[1], b0[2], b1[0], b1[1], b1[2]),
+               _pe_div(a1[0], a1[1], a1[2], b0[0], b0[1], b0[2], b1[0], b1[1], b1[2]),
+               _pe_div(b0[0], b0[1], b0[2], a0[0], a0[1], a0[2], a1[0], a1[1], a1[2]),
+               _pe_div(b1[0], b1[1], b1[2], a0[0], a0[1], a0[2], a1[0], a1[1], a1[2]))
+    u, v, w = a1 - a0, b1 - b0, b0 - a0
+    n = np.cross(u, v)
+    n2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2]
+    if n2 == 0.0:
+        return best
+    wv, wu = np.cross(w, v), np.cross(w, u)
+    s = (wv[0] * n[0] + wv[1] * n[1] + wv[2] * n[2]) / n2
+    t = (wu[0] * n[0] + wu[1] * n[1] + wu[2] * n[2]) / n2
+    if s > 0.0 and s < 1.0 and t > 0.0 and t < 1.0:
+        r = s * u - t * v - w
+        d = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
+        if d < best:
+            best = d
+    return best
+
+
+@njit
+def _pt_div(p, t0, t1, t2):
+    best = min(_pe_div(p[0], p[1], p[2], t0[0], t0[1], t0[2], t1[0], t1[1], t1[2]),
+               _pe_div(p[0], p[1], p[2], t1[0], t1[1], t1[2], t2[0], t2[1], t2[2]),
+               _pe_div(p[0], p[1], p[2], t2[0], t2[1], t2[2], t0[0], t0[1], t0[2]))
+    u, v, w = t1 - t0, t2 - t0, p - t0
+    n = np.cross(u, v)
+    n2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2]
+    if n2 == 0.0:
+        return best
+    wv, uw = np.cross(w, v), np.cross(u, w)
+    a = (wv[0] * n[0] + wv[1] * n[1] + wv[2] * n[2]) / n2
+    b = (uw[0] * n[0] + uw[1] * n[1] + uw[2] * n[2]) / n2
+    if a > 0.0 and b > 0.0 and a + b < 1.0:
+        r = w - a * u - b * v
+        d = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
+        if d < best:
+            best = d
+    return best
+
+
+def _same_bits(a, b):
+    a, b = np.float64(a), np.float64(b)
+    return (np.isnan(a) and np.isnan(b)) or a.view(np.uint64) == b.view(np.uint64)
+
+
+def test_numerator_tests_give_the_division_first_bits(rng):
+    # Random primitives at many scales, and the boundary cases: a point projecting
+    # exactly onto an endpoint (t = 0, 1, and just inside or outside by an ulp),
+    # zero-length and collinear segments, parallel and crossing edges, slivers,
+    # squares that overflow to inf, NaN and inf coordinates.
+    cases = []
+    for scale in (1e-300, 1e-8, 1.0, 1e8, 1e160):
+        for _ in range(300):
+            cases.append(rng.normal(size=(4, 3)) * scale + rng.normal(size=3) * scale * rng.integers(0, 2))
+    a, b = np.zeros(3), np.array([1.0, 0.0, 0.0])
+    for t in (0.0, 1.0, np.nextafter(0.0, 1.0), np.nextafter(1.0, 0.0), np.nextafter(1.0, 2.0), -0.0, 0.5):
+        for off in (0.0, 1e-300, 0.3):
+            cases.append(np.array([[t, off, 0.0], a, b, [t, 1.0, off]]))
+    cases += [np.array([a, a, b, b]), np.array([a, b, 2 * b, 3 * b]), np.array([a, b, a + [0, 1, 0], b + [0, 1, 0]]),
+              np.array([a, b, [0.5, -1, 0], [0.5, 1, 0]]), np.array([a, b, [0.5, 0, 1e-30], [0.5 + 1e-30, 0, 0]]),
+              np.array([[1e200, 0, 0], a, b, [0, 1e200, 0]]), np.array([[np.nan, 0, 0], a, b, b]),
+              np.array([[np.inf, 0, 0], a, b, b]), np.array([a, [np.inf, 0, 0], b, [0, np.inf, 0]])]
+    for c in cases:
+        p, q, r, s = (np.ascontiguousarray(v, dtype=np.float64) for v in c)
+        assert _same_bits(point_edge_sq(p, q, r), _pe_div(p[0], p[1], p[2], q[0], q[1], q[2], r[0], r[1], r[2]))
+        assert _same_bits(edge_edge_sq(p, q, r, s), _ee_div(p, q, r, s))
+        assert _same_bits(point_triangle_sq(p, q, r, s), _pt_div(p, q, r, s))
