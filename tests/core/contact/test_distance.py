@@ -364,45 +364,56 @@ def _pe_div(px, py, pz, ax, ay, az, bx, by, bz):
 
 
 @njit
+def _dot3(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit
+def _lower(best, d):
+    # The kernels' own update (`if d < best`), NaN handling included.
+    return d if d < best else best
+
+
+@njit
+def _pe_terms(points, segments):
+    """The kernels' fold of the division-first point-edge terms, point k against
+    segment k (rows (a, b)), in order."""
+    best = np.nan
+    for k in range(points.shape[0]):
+        p, a, b = points[k], segments[k, 0], segments[k, 1]
+        d = _pe_div(p[0], p[1], p[2], a[0], a[1], a[2], b[0], b[1], b[2])
+        best = d if k == 0 else _lower(best, d)
+    return best
+
+
+@njit
 def _ee_div(a0, a1, b0, b1):
-    best = min(_pe_div(a0[0], a0[1], a0[2], b0[0], b0[1], b0[2], b1[0], b1[1], b1[2]),
-               _pe_div(a1[0], a1[1], a1[2], b0[0], b0[1], b0[2], b1[0], b1[1], b1[2]),
-               _pe_div(b0[0], b0[1], b0[2], a0[0], a0[1], a0[2], a1[0], a1[1], a1[2]),
-               _pe_div(b1[0], b1[1], b1[2], a0[0], a0[1], a0[2], a1[0], a1[1], a1[2]))
+    eb, ea = np.stack((b0, b1)), np.stack((a0, a1))
+    best = _pe_terms(np.stack((a0, a1, b0, b1)), np.stack((eb, eb, ea, ea)))
     u, v, w = a1 - a0, b1 - b0, b0 - a0
     n = np.cross(u, v)
-    n2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2]
+    n2 = _dot3(n, n)
     if n2 == 0.0:
         return best
-    wv, wu = np.cross(w, v), np.cross(w, u)
-    s = (wv[0] * n[0] + wv[1] * n[1] + wv[2] * n[2]) / n2
-    t = (wu[0] * n[0] + wu[1] * n[1] + wu[2] * n[2]) / n2
+    s, t = _dot3(np.cross(w, v), n) / n2, _dot3(np.cross(w, u), n) / n2
     if s > 0.0 and s < 1.0 and t > 0.0 and t < 1.0:
         r = s * u - t * v - w
-        d = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
-        if d < best:
-            best = d
+        best = _lower(best, _dot3(r, r))
     return best
 
 
 @njit
 def _pt_div(p, t0, t1, t2):
-    best = min(_pe_div(p[0], p[1], p[2], t0[0], t0[1], t0[2], t1[0], t1[1], t1[2]),
-               _pe_div(p[0], p[1], p[2], t1[0], t1[1], t1[2], t2[0], t2[1], t2[2]),
-               _pe_div(p[0], p[1], p[2], t2[0], t2[1], t2[2], t0[0], t0[1], t0[2]))
+    best = _pe_terms(np.stack((p, p, p)), np.stack((np.stack((t0, t1)), np.stack((t1, t2)), np.stack((t2, t0)))))
     u, v, w = t1 - t0, t2 - t0, p - t0
     n = np.cross(u, v)
-    n2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2]
+    n2 = _dot3(n, n)
     if n2 == 0.0:
         return best
-    wv, uw = np.cross(w, v), np.cross(u, w)
-    a = (wv[0] * n[0] + wv[1] * n[1] + wv[2] * n[2]) / n2
-    b = (uw[0] * n[0] + uw[1] * n[1] + uw[2] * n[2]) / n2
+    a, b = _dot3(np.cross(w, v), n) / n2, _dot3(np.cross(u, w), n) / n2
     if a > 0.0 and b > 0.0 and a + b < 1.0:
         r = w - a * u - b * v
-        d = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
-        if d < best:
-            best = d
+        best = _lower(best, _dot3(r, r))
     return best
 
 
