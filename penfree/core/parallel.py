@@ -154,10 +154,17 @@ def claim(typingctx, counter):
 
     def codegen(context, builder, signature, args):
         ary = context.make_array(signature.args[0])(context, builder, args[0])
-        ptr = cgutils.get_item_pointer(context, builder, signature.args[0], ary, [context.get_constant(nbtypes.intp, 0)])
+        first = context.get_constant(nbtypes.intp, 0)
+        ptr = cgutils.get_item_pointer(context, builder, signature.args[0], ary, [first])
         return builder.atomic_rmw("add", ptr, context.get_constant(nbtypes.int64, 1), ordering="monotonic")
 
     return sig, codegen
+
+
+def chunk_count(work: int, most: int, least_each: int) -> int:
+    """How many chunks to cut `work` items into: at most `most`, each of at least
+    `least_each` items where there is that much work, and at least one."""
+    return max(1, min(most, work // least_each))
 
 
 def work_counter():

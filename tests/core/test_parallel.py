@@ -262,3 +262,11 @@ def test_pace_forced_builds_and_one_thread():
         assert runs == ["s"] * 5  # one thread: no region to pay for
     finally:
         numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+
+
+def test_chunk_count_bounds():
+    # at least one chunk; at most `most`; no chunk below `least_each` items when there is work for one
+    assert parallel.chunk_count(0, 8, 4) == 1
+    assert parallel.chunk_count(3, 8, 4) == 1
+    assert parallel.chunk_count(10, 8, 4) == 2
+    assert parallel.chunk_count(10**6, 8, 4) == 8

@@ -130,7 +130,7 @@ from numba import njit, prange
 from ...errors import InputError
 from .distance import _ee, _ee_gap, _pe, _pt, _pt_gap
 from .orient import segment_may_meet_triangle_at
-from ..parallel import claim, parallel_kernel, use_parallel, work_counter
+from ..parallel import chunk_count, claim, parallel_kernel, use_parallel, work_counter
 from ..topology import as_positions, as_topology, sort_segment
 
 #: A grid box spanning more than this many cells beyond its first along an axis is
@@ -1128,7 +1128,7 @@ _gather_chunks = parallel_kernel(_gather_chunks_py, "_bp_gather_chunks")
 
 def _pair_chunks(n):
     """The row chunks of `_pairs_pass` over n rows."""
-    return max(1, min(_PAIR_CHUNKS, n // _PAIR_CHUNK_MIN_ROWS))
+    return chunk_count(n, _PAIR_CHUNKS, _PAIR_CHUNK_MIN_ROWS)
 
 
 def _pairs_pass(args, n, mode=MODE_FILL, V=None, fold=None):
@@ -1450,8 +1450,7 @@ class _Plan:
         """
         if not self.empty:
             m = self.loA.shape[0]
-            n_chunks = max(1, min(_MIN_CHUNKS, m // _MIN_CHUNK_ROWS))
-            _min_rows(m, *self._args(), V, partial, mode, n_chunks, work_counter())
+            _min_rows(m, *self._args(), V, partial, mode, chunk_count(m, _MIN_CHUNKS, _MIN_CHUNK_ROWS), work_counter())
 
 
 # --- public functions ---------------------------------------------------------

@@ -64,7 +64,7 @@ from numba import njit, prange
 
 from .broad_phase import _PRUNE_SLACK, _box_arrays, _gap_sq, _Plan, fold_pair_min
 from .distance import edge_edge_sq, point_triangle_sq
-from ..parallel import claim, parallel_kernel, work_counter
+from ..parallel import chunk_count, claim, parallel_kernel, work_counter
 from ...errors import InputError
 from ..topology import as_positions, as_topology, scene_edges
 
@@ -501,8 +501,8 @@ class NeighbourList:
         gap_off = -_PRUNE_SLACK * (float(np.abs(x).max()) if x.size else 0.0)
         for P, TA, TB in ((self.P_ee, self.E, self.E), (self.P_vf, self._V, self.F)):
             if P.shape[0]:
-                n_chunks = max(1, min(_LISTED_CHUNKS, P.shape[0] // _LISTED_CHUNK_PAIRS))
-                _listed_min(P.shape[0], x, TA, TB, P, partial, gap_off, n_chunks, work_counter())
+                _listed_min(P.shape[0], x, TA, TB, P, partial, gap_off,
+                            chunk_count(P.shape[0], _LISTED_CHUNKS, _LISTED_CHUNK_PAIRS), work_counter())
         return capped_separations(partial, radius)
 
     def pairs(self, x, radius) -> dict:

@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit, prange
 
 from ...errors import InputError
-from ..parallel import parallel_kernel
+from ..parallel import chunk_count, parallel_kernel
 from ..contact.broad_phase import edge_edge_candidates, pair_rows, vertex_face_candidates
 
 #: ipctk ``TrustRegion.relaxed_radius_scaling`` (2 gamma_p with gamma_p = 0.45).
@@ -414,7 +414,7 @@ def planar_filter(x, dx, centers, inflation_radius, stencils, kinds, scaling=REL
                          f"{stencils.shape}, {kinds.shape}")
     ratio = np.ones(x.shape[0])
     if stencils.shape[0]:
-        partial = np.ones((max(1, min(_PLANAR_CHUNKS, stencils.shape[0] // _STENCILS_PER_CHUNK)), x.shape[0]))
+        partial = np.ones((chunk_count(stencils.shape[0], _PLANAR_CHUNKS, _STENCILS_PER_CHUNK), x.shape[0]))
         _planar_ratios(stencils.shape[0], x, dx, _moving(dx), stencils, kinds, float(scaling), partial)
         ratio = partial.min(axis=0)
     # ipctk's std::min(t, beta) keeps t where beta is NaN (no root): np.fmin, not np.minimum
