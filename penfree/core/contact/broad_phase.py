@@ -425,13 +425,12 @@ def _small_rows(clo, chi, reach, max_span, max_cells):
     return small, int(n_big.sum()), int(n_cells.sum())
 
 
-def _grid_pass_py(clo, chi, small, covering, dims, bits, lo, hi, bounds, slots, fill, ent_key, ent_id, ent_box,
-                  ent_clo, counter):
-    # Chunk c enters boxes [bounds[c], bounds[c + 1]): each in every cell it covers
-    # (`covering`), else once, in the cell of its lower corner. Without `fill` it counts
-    # them per bucket into its own column of `slots` (nb, C); with it, it writes them at
-    # its own slots (`slots[:, c]`, from `_grid_offsets`), so the layout is that of one
-    # serial pass in id order. No shared writes either way.
+def _grid_count_py(clo, chi, small, covering, dims, bits, bounds, counts, bkt, counter):
+    # Chunk c counts the entries of boxes [bounds[c], bounds[c + 1]) per bucket into its
+    # own row of `counts` (C, nb): each box in every cell it covers (`covering`), else
+    # once, in the cell of its lower corner, whose bucket it keeps in `bkt` (-1: a big
+    # box, not entered) for the fill. (A row per chunk: with a column per chunk, both
+    # threads' counters of a bucket shared a cache line.)
     d0 = dims[0]
     d01 = dims[0] * dims[1]
     C = bounds.shape[0] - 1
@@ -440,47 +439,78 @@ def _grid_pass_py(clo, chi, small, covering, dims, bits, lo, hi, bounds, slots, 
         while c < C:
             for j in range(bounds[c], bounds[c + 1]):
                 if not small[j]:
+                    if not covering:
+                        bkt[j] = -1
                     continue
-                top = chi[j] if covering else clo[j]
-                for z in range(clo[j, 2], top[2] + 1):
-                    for y in range(clo[j, 1], top[1] + 1):
+                if not covering:
+                    b = _bucket(d0 * clo[j, 1] + d01 * clo[j, 2] + clo[j, 0], bits)
+                    bkt[j] = b
+                    counts[c, b] += 1
+                    continue
+                for z in range(clo[j, 2], chi[j, 2] + 1):
+                    for y in range(clo[j, 1], chi[j, 1] + 1):
                         base = d0 * y + d01 * z
-                        for x in range(clo[j, 0], top[0] + 1):
+                        for x in range(clo[j, 0], chi[j, 0] + 1):
+                            counts[c, _bucket(base + x, bits)] += 1
+            c = claim(counter)
+
+
+def _grid_fill_py(clo, chi, small, covering, dims, bits, lo, hi, splits, slots, bkt, ent_key, ent_id, ent_box,
+                  ent_clo, counter):
+    # Range r enters the boxes whose bucket lies in [splits[r], splits[r + 1]), each at
+    # its bucket's next slot (`slots`, from the bucket offsets), going through every box
+    # in id order (its bucket from `bkt`, or each cell of a covering grid's): a bucket is
+    # filled by one range, in id order, so the layout is that of one serial pass, and the
+    # ranges write disjoint runs of the entry arrays. (Chunks of the boxes, each writing
+    # its own slots of every bucket, had both threads writing neighbouring slots of the
+    # same buckets at once wherever their chunks cover the same region, as the 64K
+    # cloth's two families of faces do: 2.8x slower than one thread.)
+    d0 = dims[0]
+    d01 = dims[0] * dims[1]
+    n = clo.shape[0]
+    R = splits.shape[0] - 1
+    for w in prange(min(R, counter[1])):  # ranges claimed (`parallel.claim`)
+        r = claim(counter)
+        while r < R:
+            b0, b1 = splits[r], splits[r + 1]
+            for j in range(n if b1 > b0 else 0):
+                if not covering:
+                    b = bkt[j]
+                    if b < b0 or b >= b1:  # (-1 for a big box)
+                        continue
+                    f = slots[b]
+                    slots[b] = f + 1
+                    if bits >= 0:
+                        ent_key[f] = d0 * clo[j, 1] + d01 * clo[j, 2] + clo[j, 0]
+                    ent_id[f] = j
+                    for a in range(3):
+                        ent_box[f, a] = lo[j, a]
+                        ent_box[f, 3 + a] = hi[j, a]
+                    continue
+                if not small[j]:
+                    continue
+                for z in range(clo[j, 2], chi[j, 2] + 1):
+                    for y in range(clo[j, 1], chi[j, 1] + 1):
+                        base = d0 * y + d01 * z
+                        for x in range(clo[j, 0], chi[j, 0] + 1):
                             key = base + x
                             b = _bucket(key, bits)
-                            f = slots[b, c]
-                            slots[b, c] = f + 1
-                            if not fill:
+                            if b < b0 or b >= b1:
                                 continue
+                            f = slots[b]
+                            slots[b] = f + 1
                             if bits >= 0:
                                 ent_key[f] = key
                             ent_id[f] = j
                             for a in range(3):
                                 ent_box[f, a] = lo[j, a]
                                 ent_box[f, 3 + a] = hi[j, a]
-                                if covering:
-                                    ent_clo[f, a] = clo[j, a]
-            c = claim(counter)
+                                ent_clo[f, a] = clo[j, a]
+            r = claim(counter)
 
 
-@njit(cache=True)
-def _grid_offsets(counts):
-    """Bucket offsets (nb + 1,); turns `counts` (nb, C) into each chunk's first slot in
-    each bucket (chunk c after chunks < c: entries stay in id order within a bucket)."""
-    nb, C = counts.shape
-    boff = np.empty(nb + 1, dtype=np.int64)
-    run = np.int64(0)
-    for b in range(nb):
-        boff[b] = run
-        for c in range(C):
-            k = counts[b, c]
-            counts[b, c] = run
-            run += k
-    boff[nb] = run
-    return boff
-
-
-_grid_pass = parallel_kernel(_grid_pass_py, "_bp_grid_pass")
+_grid_count = parallel_kernel(_grid_count_py, "_bp_grid_count")
+_grid_fill = parallel_kernel(_grid_fill_py, "_bp_grid_fill")
 
 
 def _check_box_count(n):
@@ -504,11 +534,11 @@ def _build_grid(clo, chi, small, covering, dims, bits, nb, lo, hi, chunks=None):
     _check_box_count(n)
     C = chunks if chunks is not None else (numba.get_num_threads() if use_parallel(n) else 1)
     bounds = (np.arange(C + 1, dtype=np.int64) * n) // C
-    counts = np.zeros((nb, C), dtype=np.int64)
-    _grid_pass(n, clo, chi, small, covering, dims, bits, lo, hi, bounds, counts, False,
-               np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int32), np.empty((0, 6)),
-               np.empty((0, 3), dtype=np.int32), work_counter())
-    boff = _grid_offsets(counts)
+    counts = np.zeros((C, nb), dtype=np.int64)
+    bkt = np.empty(0 if covering else n, dtype=np.int64)  # a lower-corner grid's box buckets
+    _grid_count(n, clo, chi, small, covering, dims, bits, bounds, counts, bkt, work_counter())
+    boff = np.zeros(nb + 1, dtype=np.int64)
+    np.cumsum(counts.sum(axis=0), out=boff[1:])
     m = int(boff[nb])
     # Keys only for a hashed table: a dense one has one cell per bucket.
     ent_key = np.empty(m if bits >= 0 else 0, dtype=np.int64)
@@ -523,8 +553,11 @@ def _build_grid(clo, chi, small, covering, dims, bits, nb, lo, hi, chunks=None):
     ent_box = np.empty((m, 6))
     # A covering grid's lower cell corners, for its emit-once rule without a division per pair.
     ent_clo = np.empty((m if covering else 0, 3), dtype=np.int32)
-    _grid_pass(n, clo, chi, small, covering, dims, bits, lo, hi, bounds, counts, True, ent_key, ent_id, ent_box,
-               ent_clo, work_counter())
+    # C ranges of buckets holding about m / C entries each
+    splits = np.searchsorted(boff, (np.arange(C + 1, dtype=np.int64) * m) // C)
+    splits[0], splits[-1] = 0, nb
+    _grid_fill(n, clo, chi, small, covering, dims, bits, lo, hi, splits, boff[:-1].copy(), bkt, ent_key, ent_id,
+               ent_box, ent_clo, work_counter())
     return boff, ent_key, ent_id, ent_box, ent_clo
 
 
@@ -558,8 +591,18 @@ def _overlap(loA, hiA, i, loB, hiB, j):
 
 @njit(cache=True, inline="always")
 def _adjacent(TA, i, TB, j):
-    for a in range(TA.shape[1]):
-        for b in range(TB.shape[1]):
+    # Whether the primitives share a vertex. The widths that occur are written out
+    # branch-free (`|`, not `or`): the loops over runtime widths compiled to a branch
+    # per vertex pair, mispredicted on the ~10 adjacent hits of a mesh edge's row.
+    ka, kb = TA.shape[1], TB.shape[1]
+    if ka == 2 and kb == 2:
+        a0, a1, b0, b1 = TA[i, 0], TA[i, 1], TB[j, 0], TB[j, 1]
+        return (a0 == b0) | (a0 == b1) | (a1 == b0) | (a1 == b1)
+    if ka == 1 and kb == 3:
+        a0 = TA[i, 0]
+        return (a0 == TB[j, 0]) | (a0 == TB[j, 1]) | (a0 == TB[j, 2])
+    for a in range(ka):
+        for b in range(kb):
             if TA[i, a] == TB[j, b]:
                 return True
     return False

@@ -166,6 +166,17 @@ def test_adjacency_rule():
     )
 
 
+@pytest.mark.parametrize("ka, kb", [(2, 2), (1, 3), (1, 2), (2, 3), (3, 3), (1, 1)])
+def test_adjacent_matches_a_set_oracle(rng, ka, kb):
+    # `_adjacent` writes out the widths that occur (edge-edge, vertex-face) branch-free
+    # and loops over the others: every width must say whether two rows share an index.
+    TA = rng.integers(0, 6, (300, ka))
+    TB = rng.integers(0, 6, (300, kb))
+    for i in range(300):
+        want = bool(set(TA[i]) & set(TB[i]))
+        assert bp._adjacent(TA, i, TB, i) == want and bp._adjacent.py_func(TA, i, TB, i) == want
+
+
 def test_between_sets(rng):
     V, F = cloth(12, rng)
     Vo, Fo = cloth(8, rng)
