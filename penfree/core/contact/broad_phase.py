@@ -236,7 +236,7 @@ _PRUNE_SLACK = 1e-9
 _PRUNE_REL = 1.0 - 1e-9
 
 
-def _boxes_py(V_t0, V_t1, T, inflation, lo, hi, corners, counter):
+def _boxes_py(V_t0, V_t1, T, inflation, axes, lo, hi, corners, counter):
     # Chunk c of corners.shape[0] makes the boxes [c m / C, (c + 1) m / C) and keeps their
     # bounding corners as `_corners_py` does (`_box_arrays`' corners, which `_Plan` would
     # otherwise read the boxes again for). Each box writes its own rows and min / max are
@@ -247,9 +247,11 @@ def _boxes_py(V_t0, V_t1, T, inflation, lo, hi, corners, counter):
     # by; the sum of the coordinates does not, nor does it overflow below ~1e307):
     # the chunk's flag (`corners[c, 2, 0]`) is then NaN, and `_checked_corners` refuses it
     # before any grid is sized. The workers claim the chunks one after another
-    # (`parallel.claim`): a late thread leaves its share to the others.
+    # (`parallel.claim`): a late thread leaves its share to the others. Box axis k is
+    # coordinate axes[k] (a plan's key order, `_Plan.axes`; (0, 1, 2) for the natural one).
     m = T.shape[0]
     C = corners.shape[0]
+    x0, x1, x2 = axes[0], axes[1], axes[2]
     for w in prange(min(C, counter[1])):
         c = claim(counter)
         while c < C:
@@ -264,8 +266,8 @@ def _boxes_py(V_t0, V_t1, T, inflation, lo, hi, corners, counter):
                 acc = 0.0
                 for k in range(T.shape[1]):
                     v = T[i, k]
-                    p0, p1, p2 = V_t0[v, 0], V_t0[v, 1], V_t0[v, 2]
-                    q0, q1, q2 = V_t1[v, 0], V_t1[v, 1], V_t1[v, 2]
+                    p0, p1, p2 = V_t0[v, x0], V_t0[v, x1], V_t0[v, x2]
+                    q0, q1, q2 = V_t1[v, x0], V_t1[v, x1], V_t1[v, x2]
                     mn0, mn1, mn2 = min(mn0, p0, q0), min(mn1, p1, q1), min(mn2, p2, q2)
                     mx0, mx1, mx2 = max(mx0, p0, q0), max(mx1, p1, q1), max(mx2, p2, q2)
                     acc += (p0 + q0) + (p1 + q1) + (p2 + q2)
@@ -287,14 +289,19 @@ def _boxes_py(V_t0, V_t1, T, inflation, lo, hi, corners, counter):
 _boxes = parallel_kernel(_boxes_py, "_bp_boxes")
 
 
-def _box_arrays(V_t0, V_t1, T, inflation, corners=False):
+_NATURAL_AXES = np.arange(3, dtype=np.int64)
+
+
+def _box_arrays(V_t0, V_t1, T, inflation, corners=False, axes=None):
     """``(lo, hi)``: the boxes of primitives T over V_t0 -> V_t1, inflated; with
     `corners`, ``(lo, hi, (2, 3) bounding corners)`` (`_box_corners`' value and checks,
-    made in the same pass)."""
+    made in the same pass). `axes`: the boxes' axes are the coordinates in this order
+    (a plan's key order, `_Plan.axes`), natural without."""
     lo = np.empty((T.shape[0], 3))
     hi = np.empty((T.shape[0], 3))
     parts = np.empty((_STAT_CHUNKS, 3, 3))
-    _boxes(T.shape[0], V_t0, V_t1, T, float(inflation), lo, hi, parts, work_counter())
+    axes = _NATURAL_AXES if axes is None else np.ascontiguousarray(axes, dtype=np.int64)
+    _boxes(T.shape[0], V_t0, V_t1, T, float(inflation), axes, lo, hi, parts, work_counter())
     return (lo, hi, _checked_corners(parts)) if corners else (lo, hi)
 
 
@@ -525,10 +532,14 @@ def _build_grid(clo, chi, small, covering, dims, bits, nb, lo, hi, chunks=None):
     in every cell it covers and keeps its lower cell corner (`ent_clo`), else each box is
     entered once, in the cell of its lower corner (and `ent_clo` is empty).
 
-    Parallel over contiguous chunks of the boxes, one per thread, each counting and
-    filling its own slots (`_grid_offsets` orders chunk c after chunks < c): the
-    arrays are those of one serial pass for any number of chunks (issue 13: the
-    serial sort was ~40% of a 64K rods `verify_step`).
+    Counted in parallel over contiguous chunks of the boxes, one per thread, each into
+    its own row of counts; filled in parallel over ranges of buckets holding about as
+    many entries each, one per thread, each range going through every box in id order
+    and entering those in its buckets (`_grid_fill_py`): the arrays are those of one
+    serial pass for any number of chunks (issue 13: the serial sort was ~40% of a 64K
+    rods `verify_step`; filling by chunks of boxes, each into its own slots of every
+    bucket, was 2.8x slower than one thread on the 64K cloth's faces, 1.4-3.5x slower
+    than by ranges of buckets on its edges and faces).
     """
     n = clo.shape[0]
     _check_box_count(n)
@@ -1291,15 +1302,20 @@ class _Plan:
     fold's lower-corner grid scans half the region); a fold's cells are cut along x
     (`_RUN_SPLIT`). Every layout answers every query, only the speed differs.
 
-    `corners`: the two sets' bounding corners when the caller has them (`_box_arrays`)."""
+    `corners`: the two sets' bounding corners when the caller has them (`_box_arrays`).
+    `axes`: None, and the plan orders the boxes' axes for its grid key (`_axis_order`,
+    `axes` the order taken); else the boxes come with their axes in that order already
+    (`_box_arrays(axes=)`, the order of an earlier plan of the same scene), and no order
+    is chosen: the layout only, never a pair, depends on it."""
 
     def __init__(self, loA, hiA, TA, loB, hiB, TB, self_query, inflation=0.0, listing=True, cells="cube",
-                 corners=(None, None)):
+                 corners=(None, None), axes=None):
         if cells not in CELL_SHAPES:
             raise ValueError(f"cells must be one of {CELL_SHAPES}; got {cells!r}")
         self.self_query = bool(self_query)
         self.loA, self.hiA, self.TA = loA, hiA, TA
         self.loB, self.hiB, self.TB = loB, hiB, TB
+        self.axes = _NATURAL_AXES if axes is None else np.ascontiguousarray(axes, dtype=np.int64)
         nA, nB = loA.shape[0], loB.shape[0]
         if nA == 0 or nB == 0:
             self.empty = True
@@ -1335,12 +1351,17 @@ class _Plan:
             h = np.full(3, _SLAB_ALONG * cube)
             h[int(np.argmin(spans))] = _SLAB_ACROSS * cube
         covering = self.self_query and listing
-        self.perm = perm = _axis_order(loB, origin, h) if _AXIS_ORDER else None
-        if perm is not None:  # from here on the plan sees the boxes' axes in key order
-            loA, hiA = _permuted(loA, hiA, perm)
-            loB, hiB = (loA, hiA) if self_query else _permuted(loB, hiB, perm)
-            origin, h, spans = origin[perm], h[perm], spans[perm]
-            self.loB, self.hiB = loB, hiB
+        if axes is not None:  # the boxes' axes are in this key order already
+            self.axes = np.ascontiguousarray(axes, dtype=np.int64)
+            self.perm = perm = None if np.array_equal(self.axes, _NATURAL_AXES) else self.axes
+        else:
+            self.perm = perm = _axis_order(loB, origin, h) if _AXIS_ORDER else None
+            self.axes = _NATURAL_AXES if perm is None else perm
+            if perm is not None:  # from here on the plan sees the boxes' axes in key order
+                loA, hiA = _permuted(loA, hiA, perm)
+                loB, hiB = (loA, hiA) if self_query else _permuted(loB, hiB, perm)
+                origin, h, spans = origin[perm], h[perm], spans[perm]
+                self.loB, self.hiB = loB, hiB
         g = None
         if not listing and _RUN_SPLIT > 1:  # the min folds: finer cells along the runs
             g = self._sized(loA, hiA, loB, hiB, origin, h / np.array([_RUN_SPLIT, 1.0, 1.0]), spans, covering,
@@ -1707,8 +1728,9 @@ def choose_cells(x, TA, TB, inflation, self_query) -> str:
     return best if cost[best] < _SHAPE_GAIN * cost["cube"] else "cube"
 
 
-def fold_min_sq(x, TA, TB, inflation, partial, self_query, cells="cube"):
-    """Fold the squared distances of near pairs into per-vertex minima (static scene).
+def fold_min_sq(x, TA, TB, inflation, partial, self_query, cells="cube", axes=None):
+    """Fold the squared distances of near pairs into per-vertex minima (static scene);
+    returns the grid key's axis order it used (`_Plan.axes`).
 
     Parameters
     ----------
@@ -1723,15 +1745,26 @@ def fold_min_sq(x, TA, TB, inflation, partial, self_query, cells="cube"):
     self_query : bool
     cells : str
         Cell shape of the grid (`CELL_SHAPES`, `choose_cells`): the time, never the result.
+    axes : (3,) int64, optional
+        The grid key's axis order, as an earlier call returned it for the same scene:
+        the boxes are made in it and no order is chosen (the time, never the result;
+        choosing and permuting cost ~1 ms a query on the 64K cloth).
+
+    Returns
+    -------
+    (3,) int64
+        The axis order used.
 
     Notes
     -----
     Inputs are assumed validated (the trust-region stage does it once per sequence).
     """
-    loA, hiA, cA = _box_arrays(x, x, TA, inflation, corners=True)
-    loB, hiB, cB = (loA, hiA, cA) if self_query else _box_arrays(x, x, TB, inflation, corners=True)
-    _Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation, listing=False, cells=cells,
-          corners=(cA, cB)).min_sq_into(x, partial)
+    loA, hiA, cA = _box_arrays(x, x, TA, inflation, corners=True, axes=axes)
+    loB, hiB, cB = (loA, hiA, cA) if self_query else _box_arrays(x, x, TB, inflation, corners=True, axes=axes)
+    plan = _Plan(loA, hiA, TA, loB, hiB, TB, self_query, inflation, listing=False, cells=cells, corners=(cA, cB),
+                 axes=axes)
+    plan.min_sq_into(x, partial)
+    return plan.axes
 
 
 def min_pair_sq(x, TA, TB, inflation, self_query) -> float:

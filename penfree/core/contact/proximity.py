@@ -31,7 +31,9 @@ Cell shapes. The grid's cells change how rows scan, never the pairs found. A bun
 of yarns at its separations' reach scans ~400 entries per row in cubes sized by the
 long axis and ~130 in per-axis cells (64K yarn: the query 1.25-1.5x faster), a sheet
 the same in both: `SeparationQuery` chooses each fold's shape once per octave of the
-query radius (`separation_cells`, `broad_phase.choose_cells`).
+query radius (`separation_cells`, `broad_phase.choose_cells`), and keeps the grid key's
+axis order that each fold took in the octave's first query (`broad_phase.fold_min_sq`'s
+`axes`: the boxes are then made in that order, and no order is chosen or applied).
 """
 
 from __future__ import annotations
@@ -142,10 +144,16 @@ def per_vertex_separation(x, E, F, radius, reach=None, cells=("cube", "cube")):
     ...                     per_vertex_separation(x, E, F, 2.0)))
     True
     """
+    return _query(x, E, F, radius, reach, cells)[0]
+
+
+def _query(x, E, F, radius, reach, cells, axes=(None, None)):
+    """`per_vertex_separation`, and the two folds' grid key axis orders (`_separations`)."""
     r = _checked(radius, "radius")
     if reach is None or not _checked(reach, "reach") < r:
-        return _separations(x, E, F, r, cells)
-    return complete_separations(x, E, F, r, float(reach), _separations(x, E, F, float(reach), cells))
+        return _separations(x, E, F, r, cells, axes)
+    d, axes = _separations(x, E, F, float(reach), cells, axes)
+    return complete_separations(x, E, F, r, float(reach), d), axes
 
 
 def complete_separations(x, E, F, radius, reach, d):
@@ -164,7 +172,7 @@ def complete_separations(x, E, F, radius, reach, d):
     C = used & (d >= tau)
     n_c = int(np.count_nonzero(C))
     if n_c > COMPLETE_MAX * x.shape[0]:
-        return _separations(x, E, F, r)
+        return _separations(x, E, F, r)[0]
     if n_c:
         d[C] = _complete(x, E, F, r, C)[C]
     return d
@@ -177,19 +185,22 @@ def _checked(radius, name):
     return r
 
 
-def _separations(x, E, F, radius, cells=("cube", "cube")):
-    """The query at one radius (every pair whose boxes, inflated by radius / 2, overlap);
-    `cells` the edge-edge and vertex-face folds' cell shapes."""
+def _separations(x, E, F, radius, cells=("cube", "cube"), axes=(None, None)):
+    """The query at one radius (every pair whose boxes, inflated by radius / 2, overlap),
+    and the folds' grid key axis orders; `cells` the edge-edge and vertex-face folds'
+    cell shapes, `axes` their axis orders (None: each fold chooses), as `fold_min_sq`
+    takes and returns them."""
     n = x.shape[0]
     inflation = 0.5 * radius
     # from the cap: pairs beyond the radius are skipped from the first pair on
     partial = start_minima(n, radius)
+    ee, vf = axes
     if E.shape[0]:
-        fold_min_sq(x, E, E, inflation, partial, self_query=True, cells=cells[0])
+        ee = fold_min_sq(x, E, E, inflation, partial, self_query=True, cells=cells[0], axes=ee)
     if F.shape[0]:
         Q = _face_vertices(n)
-        fold_min_sq(x, Q, F, inflation, partial, self_query=False, cells=cells[1])
-    return capped_separations(partial, radius)
+        vf = fold_min_sq(x, Q, F, inflation, partial, self_query=False, cells=cells[1], axes=vf)
+    return capped_separations(partial, radius), (ee, vf)
 
 
 def _face_vertices(n):
@@ -248,6 +259,11 @@ def _complete(x, E, F, radius, C):
     return capped_separations(partial, radius)
 
 
+def _octave(rho):
+    """The octave [2^k, 2^(k+1)) of a query radius (`SeparationQuery` keeps a layout per octave)."""
+    return math.frexp(rho)[1] if rho > 0.0 else None
+
+
 def next_reach(d, radius):
     """The reach for the next state's query from this state's separations `d` at `radius`:
     `REACH_HEADROOM` times the largest below `radius`, or None (query at the radius) when
@@ -276,7 +292,8 @@ class SeparationQuery:
         (vertices at or above the reach, the ones completed at the full radius, over
         all queries); ``reach`` (the last); ``cells`` (the last query's folds' cell
         shapes, `separation_cells`, chosen once per octave of the query radius: box
-        sizes follow it).
+        sizes follow it; the folds' grid key axis orders are kept per octave too, from
+        its first query).
 
     Examples
     --------
@@ -293,6 +310,7 @@ class SeparationQuery:
         self.F = np.ascontiguousarray(F, dtype=np.int64)
         self.reach = None
         self._cells_by_octave = {}
+        self._axes_by_octave = {}  # the folds' grid key axis orders, from an octave's first query
         self.info = {"queries": 0, "reached": 0, "completed": 0, "reach": None, "cells": None}
 
     def __call__(self, x, radius):
@@ -300,8 +318,11 @@ class SeparationQuery:
         x = np.ascontiguousarray(x, dtype=np.float64)
         r = _checked(radius, "radius")
         reach = self.reach if self.reach is not None and self.reach < r else None
-        cells = self._cells(x, r if reach is None else reach)
-        d = per_vertex_separation(x, self.E, self.F, r, reach=reach, cells=cells)
+        rho = r if reach is None else reach
+        cells = self._cells(x, rho)
+        octave = _octave(rho)
+        d, axes = _query(x, self.E, self.F, r, reach, cells, self._axes_by_octave.get(octave, (None, None)))
+        self._axes_by_octave.setdefault(octave, axes)
         self.info["queries"] += 1
         if reach is not None:
             self.info["reached"] += 1
@@ -313,7 +334,7 @@ class SeparationQuery:
     def _cells(self, x, rho):
         """The folds' cell shapes for a query at `rho`: chosen (`separation_cells`) at
         the first query whose `rho` lies in its octave [2^k, 2^(k+1)) and kept for it."""
-        octave = math.frexp(rho)[1] if rho > 0.0 else None
+        octave = _octave(rho)
         if octave not in self._cells_by_octave:
             self._cells_by_octave[octave] = separation_cells(x, self.E, self.F, rho)
         self.info["cells"] = self._cells_by_octave[octave]

@@ -502,8 +502,9 @@ def test_cell_ranges_match_a_numpy_oracle(rng, max_reach):
 @pytest.mark.parametrize("sparse", [False, True], ids=["dense", "hashed"])
 @pytest.mark.parametrize("chunks", [1, 2, 3, 7])
 def test_grid_build_is_one_serial_pass_for_any_chunking(rng, sparse, chunks, listing):
-    # The chunked counting sort (one chunk per thread) must lay out the entries as one
-    # serial pass in id order: ids ascending within a bucket, each with its own box. A
+    # The parallel counting sort (counted by chunks of boxes, filled by ranges of
+    # buckets, as many of each as `chunks`) must lay out the entries as one serial pass
+    # in id order: ids ascending within a bucket, each with its own box. A
     # listed self query's grid covers cells (reach 0, big boxes cover > _BIG_CELLS cells);
     # the min folds' grid stores each box at its lower corner (big boxes span more cells
     # than the reach's cap, the reach is the others' largest span).

@@ -362,6 +362,58 @@ def test_separation_query_chooses_cells_once_per_octave(rng, monkeypatch):
     assert len({np.frexp(r)[1] for r in calls}) == 2
 
 
+@pytest.mark.parametrize("cells", ["cube", "slab"])
+def test_any_axis_order_gives_the_same_bits(rng, monkeypatch, cells):
+    # The grid key's axis order (chosen by the plan, or given: the boxes made in it)
+    # changes the layout only: every order folds the unpruned fold's bits, and the fold
+    # returns the order it used.
+    import itertools
+
+    for name, (V, E, F) in _cell_scenes(rng).items():
+        radius = 0.05
+        want = _unpruned(V, E, F, radius, monkeypatch)
+        Q = np.arange(len(V), dtype=np.int64)[:, None]
+        chosen = []
+        for axes in [None, *itertools.permutations(range(3))]:
+            partial = proximity.start_minima(len(V), radius)
+            got_axes = [bp.fold_min_sq(V, E, E, radius / 2, partial, True, cells=cells, axes=axes)]
+            if F.shape[0]:
+                got_axes.append(bp.fold_min_sq(V, Q, F, radius / 2, partial, False, cells=cells, axes=axes))
+            got = proximity.capped_separations(partial, radius)
+            np.testing.assert_array_equal(got.view(np.uint64), want.view(np.uint64), err_msg=f"{name} {axes}")
+            for a in got_axes:
+                assert sorted(a.tolist()) == [0, 1, 2]
+                if axes is not None:
+                    assert a.tolist() == list(axes)
+            chosen.append(got_axes[0].tolist())
+        # the plan's own choice is one of the orders, and given it back it is kept
+        assert chosen[0] in chosen[1:]
+
+
+def test_separation_query_keeps_each_octaves_axis_order(rng, monkeypatch):
+    # The folds' axis orders of an octave's first query are passed to its later ones
+    # (no order chosen, no boxes permuted again); every query gives a fresh one's bits.
+    V, F = _sheet(12, rng)
+    E = edges_from_faces(F)
+    seen = []
+    real = bp.fold_min_sq
+
+    def spy(*args, axes=None, **kw):
+        seen.append(None if axes is None else list(axes))
+        return real(*args, axes=axes, **kw)
+
+    monkeypatch.setattr(proximity, "fold_min_sq", spy)
+    q = proximity.SeparationQuery(E, F)
+    for s in range(4):
+        x = np.ascontiguousarray(V + 1e-4 * s * V[:, ::-1])
+        want = per_vertex_separation(x, E, F, 0.3)
+        seen.clear()
+        np.testing.assert_array_equal(q(x, 0.3), want)
+        if s >= 2:  # (the first query runs at the radius, the second is the reach's first)
+            assert None not in seen and len(seen) == 2, seen
+    assert set(q._axes_by_octave) == {np.frexp(0.3)[1], np.frexp(q.info["reach"])[1]}
+
+
 def test_plan_rejects_an_unknown_cell_shape():
     lo = np.zeros((2, 3))
     hi = np.ones((2, 3))
