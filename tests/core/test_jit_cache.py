@@ -120,7 +120,7 @@ def test_the_stamp_follows_contents_not_location(tmp_path):
 
 
 def test_penfree_kernels_carry_the_dependency_stamp():
-    locator = broad_phase._grid_offsets._cache._impl.locator
+    locator = broad_phase._hit_rate._cache._impl.locator
     assert isinstance(locator, jit_cache.DependencyStampLocator)
     _, stamp = locator.get_source_stamp()
     assert stamp == jit_cache.source_stamp(Path(broad_phase.__file__), PKG)
