@@ -462,8 +462,8 @@ def _grid_count_py(clo, chi, small, covering, dims, bits, bounds, counts, bkt, c
             c = claim(counter)
 
 
-def _grid_fill_py(clo, chi, small, covering, dims, bits, lo, hi, splits, slots, bkt, ent_key, ent_id, ent_box,
-                  ent_clo, counter):
+def _grid_fill_py(clo, chi, small, covering, dims, bits, lo, hi, splits, slots, bkt, cmax, ent_key, ent_id,
+                  ent_box, ent_clo, counter):
     # Range r enters the boxes whose bucket lies in [splits[r], splits[r + 1]), each at
     # its bucket's next slot (`slots`, from the bucket offsets), going through every box
     # in id order (its bucket from `bkt`, or each cell of a covering grid's): a bucket is
@@ -489,6 +489,8 @@ def _grid_fill_py(clo, chi, small, covering, dims, bits, lo, hi, splits, slots, 
                     slots[b] = f + 1
                     if bits >= 0:
                         ent_key[f] = d0 * clo[j, 1] + d01 * clo[j, 2] + clo[j, 0]
+                    else:  # a dense table's largest upper x per cell (`_visit_row` skips by it)
+                        cmax[b] = max(cmax[b], hi[j, 0])
                     ent_id[f] = j
                     for a in range(3):
                         ent_box[f, a] = lo[j, a]
@@ -528,9 +530,13 @@ def _check_box_count(n):
 
 def _build_grid(clo, chi, small, covering, dims, bits, nb, lo, hi, chunks=None):
     """Counting sort of the small boxes' (box, cell) entries by bucket, in id order within
-    a bucket: (boff, ent_key, ent_id, ent_box, ent_clo). A covering grid enters each box
-    in every cell it covers and keeps its lower cell corner (`ent_clo`), else each box is
-    entered once, in the cell of its lower corner (and `ent_clo` is empty).
+    a bucket: (boff, cmax, ent_key, ent_id, ent_box, ent_clo). A covering grid enters each
+    box in every cell it covers and keeps its lower cell corner (`ent_clo`), else each box
+    is entered once, in the cell of its lower corner (and `ent_clo` is empty). A dense
+    table (one cell per bucket) keeps in `cmax` its cells' largest box upper x (-inf for
+    an empty cell; a covering grid's stay -inf): a row's run skips the leading cells whose
+    boxes all end below its own lower x (`_visit_row`; the 64K cloth's vertex-face rows
+    scanned 26% fewer entries, its edge-edge rows 13%).
 
     Counted in parallel over contiguous chunks of the boxes, one per thread, each into
     its own row of counts; filled in parallel over ranges of buckets holding about as
@@ -567,9 +573,12 @@ def _build_grid(clo, chi, small, covering, dims, bits, nb, lo, hi, chunks=None):
     # C ranges of buckets holding about m / C entries each
     splits = np.searchsorted(boff, (np.arange(C + 1, dtype=np.int64) * m) // C)
     splits[0], splits[-1] = 0, nb
-    _grid_fill(n, clo, chi, small, covering, dims, bits, lo, hi, splits, boff[:-1].copy(), bkt, ent_key, ent_id,
-               ent_box, ent_clo, work_counter())
-    return boff, ent_key, ent_id, ent_box, ent_clo
+    # A dense table's largest upper x of each cell's boxes, -inf for none (a covering
+    # grid's stays -inf: its rows do not skip by it, unless it is empty and they may).
+    cmax = np.full(nb if bits < 0 else 0, -np.inf)
+    _grid_fill(n, clo, chi, small, covering, dims, bits, lo, hi, splits, boff[:-1].copy(), bkt, cmax, ent_key,
+               ent_id, ent_box, ent_clo, work_counter())
+    return boff, cmax, ent_key, ent_id, ent_box, ent_clo
 
 
 @njit(cache=True, inline="always")
@@ -776,7 +785,7 @@ def _scan(mode, i, box, TA, TB, bits, key, ent_key, ent_id, ent_box, ent_clo, co
 
 @njit(cache=True, inline="always")
 def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB, dims, bits, reach,
-               boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off, J, pos, lim, V, dmin, buf):
+               boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off, J, pos, lim, V, dmin, buf):
     # At most 30 parameters (CPython's limit for a plain call): with more, the callers'
     # calls compile through a tuple (CALL_FUNCTION_EX), which Numba's inliner refuses
     # ("closure with *args").
@@ -819,6 +828,10 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, 
                 row = dims[0] * (y + dims[1] * z)
                 own = half and z == cz and y == cy  # this run starts at row i's own cell
                 xs = cx if own else x0
+                if dense:  # leading cells whose boxes all end below this box's lower x: skipped
+                    while xs <= x1 and cmax[row + xs] < box[0]:
+                        xs += 1
+                    own = own and xs == cx
                 # Dense table: the cells xs..x1 are consecutive buckets, one run of entries
                 # (a cell's entries are in ascending id, filled in id order); else cell by cell.
                 # One `_scan` call site (Numba copies an inlined body per site: compile time).
@@ -864,7 +877,7 @@ def _close_row(J, pos, n, lim, over):
 
 
 def _fill_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                    dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
+                    dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
                     starts, todo, bstart, blim, counts, J, full, mode, V):
     """One pass over the rows of the chunks marked in `todo`, filling and counting.
 
@@ -886,7 +899,7 @@ def _fill_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
         for i in range(starts[c], starts[c + 1]):
             # once full, the same mode only counts (no slot below a limit of -1)
             n = _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                           dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
+                           dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
                            J, pos, -1 if over else lim, V, dmin, buf)
             counts[i] = n
             pos, over = _close_row(J, pos, n, lim, over)
@@ -894,7 +907,7 @@ def _fill_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
 
 
 def _min_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-              dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off, V,
+              dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off, V,
               partial, mode, n_chunks, counter):
     # Worker w (one per row of `partial`) claims chunk after chunk of the rows, chunk c
     # being rows [c m / C, (c + 1) m / C) (`parallel.claim` on `counter`), and folds them
@@ -910,7 +923,7 @@ def _min_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
         while c < n_chunks:
             for i in range(c * m // n_chunks, (c + 1) * m // n_chunks):
                 _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                           dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
+                           dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
                            J, 0, 0, V, partial[w], buf)
             c = claim(counter)
 
@@ -969,7 +982,7 @@ def _fold_owned(V, E, i, F, j, face_edges, owner_face, owner_edge, loE, hiE, loF
 
 
 def _start_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                     dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
+                     dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
                      starts, todo, bstart, blim, counts, J, full, V,
                      face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, inflation, slack, partial):
     """`_fill_chunks` of MODE_FILL_EF for the rows A = edges, B = faces, fused with the
@@ -992,7 +1005,7 @@ def _start_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
             n = np.int64(0)
             for _ in range(2):  # a row with more hits than the scratch: visit it again (one call site)
                 n = _visit_row(MODE_FILL_ALL, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                               dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
+                               dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
                                hits, 0, hits.shape[0], V, none, buf)
                 if n <= hits.shape[0]:
                     break
@@ -1151,7 +1164,7 @@ def _hit_rate(rows, self_query, loA, hiA, cloA, chiA, smallA, dims, bits, reach,
 
 @njit(cache=True)
 def _sample_counts(rows, mode, V, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                   dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off):
+                   dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off):
     """(len(rows),) int64: the partner count of each sampled row."""
     J = np.empty(0, dtype=np.int64)
     dmin = np.empty(0)
@@ -1159,7 +1172,7 @@ def _sample_counts(rows, mode, V, self_query, loA, hiA, TA, cloA, chiA, smallA, 
     out = np.empty(rows.shape[0], dtype=np.int64)
     for k in range(rows.shape[0]):
         out[k] = _visit_row(mode, rows[k], self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                            dims, bits, reach, boff, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
+                            dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
                             J, 0, -1, V, dmin, buf)
     return out
 
@@ -1370,7 +1383,7 @@ class _Plan:
                 g = None
         if g is None:
             g = self._sized(loA, hiA, loB, hiB, origin, h, spans, covering, _MAX_REACH, 1.0)
-        self.boff, self.ent_key, self.ent_id, self.ent_box, self.ent_clo = _build_grid(
+        self.boff, self.cmax, self.ent_key, self.ent_id, self.ent_box, self.ent_clo = _build_grid(
             g.cloB, g.chiB, g.smallB, covering, g.dims, g.bits, g.nb, loB, hiB)
         self.origin, self.h, self.dims, self.bits, self.reach = origin, g.h, g.dims, g.bits, g.reach
         self._set_rows(loA, hiA, TA, g.cloA, g.chiA, g.smallA)
@@ -1460,7 +1473,8 @@ class _Plan:
     def _args(self):
         return (self.self_query, self.loA, self.hiA, self.TA, self.cloA, self.chiA, self.smallA,
                 self.loB, self.hiB, self.TB, self.dims, self.bits, self.reach,
-                self.boff, self.ent_key, self.ent_id, self.ent_box, self.ent_clo, self.compact, self.bigB, self.gap_off)
+                self.boff, self.cmax, self.ent_key, self.ent_id, self.ent_box, self.ent_clo, self.compact, self.bigB,
+                self.gap_off)
 
     def pairs(self):
         """(K, 2) int64 rows (i, j), sorted lexicographically.

@@ -530,7 +530,7 @@ def test_grid_build_is_one_serial_pass_for_any_chunking(rng, sparse, chunks, lis
     nb = plan.boff.size - 1
     lo, hi = plan.loB, plan.hiB  # the boxes with their axes in the grid key's order
     got = bp._build_grid(plan.cloA, plan.chiA, plan.smallA, listing, plan.dims, plan.bits, nb, lo, hi, chunks=chunks)
-    boff, ent_key, ent_id, ent_box, ent_clo = got
+    boff, cmax, ent_key, ent_id, ent_box, ent_clo = got
     b, key, ids = _grid_oracle(plan.cloA, plan.chiA, plan.smallA, plan.dims, plan.bits, listing)
     np.testing.assert_array_equal(boff, np.searchsorted(b, np.arange(nb + 1)))
     np.testing.assert_array_equal(ent_id, ids)
@@ -538,7 +538,14 @@ def test_grid_build_is_one_serial_pass_for_any_chunking(rng, sparse, chunks, lis
     np.testing.assert_array_equal(ent_clo, plan.cloA[ids] if listing else np.zeros((0, 3)))
     if sparse:
         np.testing.assert_array_equal(ent_key, key)
-    for name, arr in zip(("boff", "ent_key", "ent_id", "ent_box", "ent_clo"), got):
+    if sparse:
+        assert cmax.size == 0
+    else:  # each cell's largest upper x (-inf when empty; a covering grid's unused, all -inf)
+        want = np.full(nb, -np.inf)
+        if not listing:
+            np.maximum.at(want, b, hi[ids, 0])
+        np.testing.assert_array_equal(cmax, want)
+    for name, arr in zip(("boff", "cmax", "ent_key", "ent_id", "ent_box", "ent_clo"), got):
         np.testing.assert_array_equal(getattr(plan, name), arr)
 
 
