@@ -468,6 +468,15 @@ def _grid_count_py(clo, chi, small, covering, dims, bits, bounds, counts, bkt, c
             c = claim(counter)
 
 
+@njit(cache=True, inline="always")
+def _enter(f, j, lo, hi, ent_id, ent_box):
+    # Grid entry f holds box j: its id and a copy of the box (lo x, y, z, hi x, y, z).
+    ent_id[f] = j
+    for a in range(3):
+        ent_box[f, a] = lo[j, a]
+        ent_box[f, 3 + a] = hi[j, a]
+
+
 def _grid_fill_py(clo, chi, small, covering, dims, bits, lo, hi, splits, slots, bkt, cmax, ent_key, ent_id,
                   ent_box, ent_clo, counter):
     # Range r enters the boxes whose bucket lies in [splits[r], splits[r + 1]), each at
@@ -497,10 +506,7 @@ def _grid_fill_py(clo, chi, small, covering, dims, bits, lo, hi, splits, slots, 
                         ent_key[f] = d0 * clo[j, 1] + d01 * clo[j, 2] + clo[j, 0]
                     else:  # a dense table's largest upper x per cell (`_visit_row` skips by it)
                         cmax[b] = max(cmax[b], hi[j, 0])
-                    ent_id[f] = j
-                    for a in range(3):
-                        ent_box[f, a] = lo[j, a]
-                        ent_box[f, 3 + a] = hi[j, a]
+                    _enter(f, j, lo, hi, ent_id, ent_box)
                     continue
                 if not small[j]:
                     continue
@@ -516,10 +522,8 @@ def _grid_fill_py(clo, chi, small, covering, dims, bits, lo, hi, splits, slots, 
                             slots[b] = f + 1
                             if bits >= 0:
                                 ent_key[f] = key
-                            ent_id[f] = j
+                            _enter(f, j, lo, hi, ent_id, ent_box)
                             for a in range(3):
-                                ent_box[f, a] = lo[j, a]
-                                ent_box[f, 3 + a] = hi[j, a]
                                 ent_clo[f, a] = clo[j, a]
             r = claim(counter)
 
@@ -1267,9 +1271,10 @@ def _cell_changes(lo, origin, h, step):
     """(3,) int64: per axis, how many of the consecutive box pairs (j, j + 1), j = 0,
     step, 2 step, ..., have their lower corners in different cells."""
     out = np.zeros(3, dtype=np.int64)
+    inv_h = 1.0 / h
     for j in range(0, lo.shape[0] - 1, step):
         for a in range(3):
-            out[a] += _cell(lo[j, a], origin[a], 1.0 / h[a]) != _cell(lo[j + 1, a], origin[a], 1.0 / h[a])
+            out[a] += _cell(lo[j, a], origin[a], inv_h[a]) != _cell(lo[j + 1, a], origin[a], inv_h[a])
     return out
 
 
@@ -1374,8 +1379,7 @@ class _Plan:
             h = np.full(3, _SLAB_ALONG * cube)
             h[int(np.argmin(spans))] = _SLAB_ACROSS * cube
         covering = self.self_query and listing
-        if axes is not None:  # the boxes' axes are in this key order already
-            self.axes = np.ascontiguousarray(axes, dtype=np.int64)
+        if axes is not None:  # the boxes' axes are in this key order already (`self.axes`)
             self.perm = perm = None if np.array_equal(self.axes, _NATURAL_AXES) else self.axes
         else:
             self.perm = perm = _axis_order(loB, origin, h) if _AXIS_ORDER else None
