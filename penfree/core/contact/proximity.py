@@ -47,6 +47,7 @@ from ...constants import REDUCTION_CHUNKS
 from ...errors import InputError
 from ..topology import separation_vertices
 from .broad_phase import _box_arrays, _Plan, choose_cells, fold_min_sq
+from .locality import relabelling
 
 #: Cap on the per-worker partial minima, in float64 entries (32 MiB).
 _PARTIAL_ENTRIES_MAX = 1 << 22
@@ -293,7 +294,9 @@ class SeparationQuery:
         all queries); ``reach`` (the last); ``cells`` (the last query's folds' cell
         shapes, `separation_cells`, chosen once per octave of the query radius: box
         sizes follow it; the folds' grid key axis orders are kept per octave too, from
-        its first query).
+        its first query); ``relabelled`` (whether the queries run on the scene
+        renumbered along a Morton curve of the first state, `locality.relabelling`:
+        a scene whose labels carry no locality; the same values bit for bit).
 
     Examples
     --------
@@ -311,18 +314,28 @@ class SeparationQuery:
         self.reach = None
         self._cells_by_octave = {}
         self._axes_by_octave = {}  # the folds' grid key axis orders, from an octave's first query
-        self.info = {"queries": 0, "reached": 0, "completed": 0, "reach": None, "cells": None}
+        self._relabel = None  # `locality.Relabelling`, False (the labels are local), None (not decided)
+        self.info = {"queries": 0, "reached": 0, "completed": 0, "reach": None, "cells": None,
+                     "relabelled": False}
 
     def __call__(self, x, radius):
         """(N,) float64 separations at `x` capped at `radius` (`per_vertex_separation`)."""
         x = np.ascontiguousarray(x, dtype=np.float64)
         r = _checked(radius, "radius")
+        if self._relabel is None:
+            self._relabel = relabelling(x, self.E, self.F) or False
+            self.info["relabelled"] = bool(self._relabel)
+        E, F = self.E, self.F
+        if self._relabel:
+            x, E, F = self._relabel.positions(x), self._relabel.E, self._relabel.F
         reach = self.reach if self.reach is not None and self.reach < r else None
         rho = r if reach is None else reach
-        cells = self._cells(x, rho)
+        cells = self._cells(x, E, F, rho)
         octave = _octave(rho)
-        d, axes = _query(x, self.E, self.F, r, reach, cells, self._axes_by_octave.get(octave, (None, None)))
+        d, axes = _query(x, E, F, r, reach, cells, self._axes_by_octave.get(octave, (None, None)))
         self._axes_by_octave.setdefault(octave, axes)
+        if self._relabel:
+            d = self._relabel.to_caller(d)
         self.info["queries"] += 1
         if reach is not None:
             self.info["reached"] += 1
@@ -331,12 +344,12 @@ class SeparationQuery:
         self.observe(d, r)
         return d
 
-    def _cells(self, x, rho):
+    def _cells(self, x, E, F, rho):
         """The folds' cell shapes for a query at `rho`: chosen (`separation_cells`) at
         the first query whose `rho` lies in its octave [2^k, 2^(k+1)) and kept for it."""
         octave = _octave(rho)
         if octave not in self._cells_by_octave:
-            self._cells_by_octave[octave] = separation_cells(x, self.E, self.F, rho)
+            self._cells_by_octave[octave] = separation_cells(x, E, F, rho)
         self.info["cells"] = self._cells_by_octave[octave]
         return self.info["cells"]
 

@@ -320,32 +320,43 @@ class StepBounds:
     the pairs within the separations instead of the query radius (ladder 2.0x / 3.0x
     faster on the 64K yarn / cloth results). A fresh query runs at the reach too.
 
+    Labels (`penfree.core.contact.locality`): given a state `x` of the scene, a scene
+    whose vertex labels carry no locality is renumbered along a Morton curve of it, and
+    the lists and queries run on that (the same bits, taken back to the caller's labels).
+
     Attributes
     ----------
     info : dict
         ``listed`` and ``fresh`` queries answered, ``builds``, ``completed`` (vertices
-        of listed answers completed at r_q).
+        of listed answers completed at r_q), ``relabelled``.
     """
 
-    def __init__(self, E, F, thickness, gamma):
+    def __init__(self, E, F, thickness, gamma, x=None):
+        from ..contact.locality import relabelling
+        from ..contact.proximity import SeparationQuery
         from .bounds import _radius
 
         self.E, self.F = E, F
         self.h = _radius(thickness, "thickness")
         self.gamma = _radius(gamma, "gamma")
         self.nl = None
+        self._relabel = None if x is None else relabelling(x, E, F)
+        # the scene the lists and queries run on: the relabelled one, or the caller's
+        self._E, self._F = (self._relabel.E, self._relabel.F) if self._relabel else (E, F)
         # fresh queries, and the reach of the last answer (`proximity.next_reach`)
-        from ..contact.proximity import SeparationQuery
-
-        self.query = SeparationQuery(E, F)
-        self.info = {"listed": 0, "fresh": 0, "builds": 0, "completed": 0}
+        self.query = SeparationQuery(self._E, self._F)
+        self.info = {"listed": 0, "fresh": 0, "builds": 0, "completed": 0, "relabelled": self._relabel is not None}
 
     @classmethod
     def for_scene(cls, x, edges, faces, thickness, gamma):
         from .bounds import scene_arrays
 
-        _, E, F = scene_arrays(np.asarray(x), edges, faces)
-        return cls(E, F, thickness, gamma)
+        x, E, F = scene_arrays(np.asarray(x), edges, faces)
+        return cls(E, F, thickness, gamma, x=x)
+
+    def _local(self, x):
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        return self._relabel.positions(x) if self._relabel else x
 
     def begin_step(self, x, r_q):
         """Build the step's list at its start `x` (a no-op for r_q <= 0: no query then),
@@ -356,13 +367,14 @@ class StepBounds:
         if r_q > 0 and (self.E.shape[0] > 1 or self.F.shape[0]):
             reach = self.query.reach
             r = float(r_q) if reach is None else min(float(r_q), reach)
-            self.nl = NeighbourList(self.E, self.F, skin=STEP_SKIN_REL * r)
-            self.nl.ensure(np.ascontiguousarray(x, dtype=np.float64), r, need_list=True)
+            self.nl = NeighbourList(self._E, self._F, skin=STEP_SKIN_REL * r)
+            self.nl.ensure(self._local(x), r, need_list=True)
             self.info["builds"] += 1
 
     def separations(self, x, r_q):
         """Per-vertex separations at `x` capped at `r_q`, as `per_vertex_separation`."""
-        return self._separations(np.ascontiguousarray(x, dtype=np.float64), r_q)
+        d = self._separations(self._local(x), r_q)
+        return self._relabel.to_caller(d) if self._relabel else d
 
     def _separations(self, x, r_q):
         from ..contact.proximity import REACH_HEADROOM, complete_separations
@@ -377,7 +389,7 @@ class StepBounds:
         elif expect is not None and expect <= cover:
             # the list holds every pair within `cover` < r_q: the vertices it leaves at the
             # cap are completed at r_q, as a query at a reach (`complete_separations`)
-            d = complete_separations(x, self.E, self.F, r_q, cover, nl.listed_separations(x, cover))
+            d = complete_separations(x, self._E, self._F, r_q, cover, nl.listed_separations(x, cover))
             self.info["completed"] += int(np.count_nonzero(d >= cover))
         else:
             self.info["fresh"] += 1

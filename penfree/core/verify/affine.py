@@ -26,17 +26,23 @@ def _margin(A, need_positive):
     return positive_margin(A)
 
 
-def _start_pass(col, scene, g):
+def _start_pass(col, scene, g, relabel=None):
     """The start state's edge-face intersections into `col` (as `path._edge_face`), and
     True when every vertex-face and edge-edge pair is proven more than `g` apart: the
     computed distances of the pairs whose boxes come within g (folded, no pair stored,
     no CCD; `broad_phase.start_pass`) all above `reuse.apart_sq` (far above the distance
     kernels' rounding). False means "maybe within g": the static CCD then decides. The
     folds start at twice that distance (`start_pass`'s cap): pairs provably farther
-    apart are not evaluated, and the answer is the uncapped one."""
+    apart are not evaluated, and the answer is the uncapped one. `relabel`: the scene's
+    `locality.Relabelling`, the pass run on it (the same pairs and minimum)."""
     x = scene.x_t0
     apart = apart_sq(g, x)
-    cand, d2 = start_pass(x, scene.E, scene.F, scene.V, _inflation(g, x), cap_sq=4.0 * apart)
+    if relabel is None:
+        cand, d2 = start_pass(x, scene.E, scene.F, scene.V, _inflation(g, x), cap_sq=4.0 * apart)
+    else:
+        cand, d2 = start_pass(relabel.positions(x), relabel.E, relabel.F, relabel.inv[scene.V], _inflation(g, x),
+                              cap_sq=4.0 * apart)
+        cand = relabel.edge_face_to_caller(cand)
     if len(cand):
         edge_face_exact(col, "ef", x, scene.E, scene.F, cand[:, 0], cand[:, 1])
     return d2 > apart
@@ -58,7 +64,9 @@ def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0
         As in `verify_step`.
     neighbours : NeighbourList, optional
         Reused across the steps of a result (`penfree.core.verify.reuse.result_lists`,
-        built over this scene's E and F): the static proximity pass is answered from it.
+        built over this scene's E and F): the static proximity pass is answered from it,
+        or, where its cost model declines, run fresh on its scene's relabelling when the
+        scene's labels carry no locality (`NeighbourList.relabelling`).
 
     Returns
     -------
@@ -102,7 +110,8 @@ def verify_affine_step(x_t0, x_def, A, b, *, edges=None, faces=None, thickness=0
         return None
     col = _Collector()
     if neighbours is None or not listed_start_pass(col, neighbours, scene.x_t0, g):
-        if not _start_pass(col, scene, g) and not col.kinds:
+        relabel = None if neighbours is None else neighbours.relabelling(scene.x_t0)
+        if not _start_pass(col, scene, g, relabel) and not col.kinds:
             _pairs_self(col, scene, g, static=True)
     if col.kinds:
         return None  # a start pair within g (maybe a real violation): full CCD decides

@@ -419,13 +419,24 @@ def test_compute_stats_positions_keyword_and_relabelling(rng):
 
 
 @pytest.mark.parametrize("kind", ["rods", "cloth"])
-def test_step_bounds_answer_affine_images_from_the_list_bit_for_bit(rng, kind):
+@pytest.mark.parametrize("shuffled", [False, True], ids=["own-labels", "shuffled-relabelled"])
+def test_step_bounds_answer_affine_images_from_the_list_bit_for_bit(rng, monkeypatch, kind, shuffled):
     # One neighbour list per step (built at the start x): the affine images of x (the
     # ladder's maps, a result's x_def) come from it, any other state (the prediction)
-    # from a fresh query; every answer is trust_region_bounds' bit for bit.
+    # from a fresh query; every answer is trust_region_bounds' bit for bit. Shuffled:
+    # the labels of a remesher, the lists and queries run on the scene's relabelling
+    # (forced here on a small scene), the same bits in the caller's labels.
+    from penfree.core.contact import locality
     from penfree.core.trust.bounds import trust_region_bounds
 
     pos, topo = _rod_scene(rng, n=40) if kind == "rods" else _cloth_scene(rng, m=9)
+    if shuffled:
+        monkeypatch.setattr(locality, "GAP_MIN", -1)
+        monkeypatch.setattr(locality, "GAP_SHARE", 0.0)
+        perm = rng.permutation(pos.shape[1])  # new vertex k is old vertex perm[k]
+        inv = np.empty_like(perm)
+        inv[perm] = np.arange(perm.size)
+        pos, topo = np.ascontiguousarray(pos[:, perm]), np.ascontiguousarray(inv[topo][rng.permutation(len(topo))])
     kw = {"edges": topo} if kind == "rods" else {"faces": topo}
     sb = StepBounds.for_scene(pos[0], kw.get("edges"), kw.get("faces"), 0.01, DEFAULT_GAMMA)
     x, x_prev = pos[2].astype(np.float64), pos[1].astype(np.float64)
@@ -452,7 +463,8 @@ def test_step_bounds_answer_affine_images_from_the_list_bit_for_bit(rng, kind):
     # without begin_step, or with r_q = 0, every query is fresh and still exact
     sb2 = StepBounds.for_scene(pos[0], kw.get("edges"), kw.get("faces"), 0.01, DEFAULT_GAMMA)
     np.testing.assert_array_equal(sb2(x, r_q), trust_region_bounds(x, thickness=0.01, query_radius=r_q, **kw))
-    assert sb2.info == {"listed": 0, "fresh": 1, "builds": 0, "completed": 0}
+    assert sb2.info == {"listed": 0, "fresh": 1, "builds": 0, "completed": 0, "relabelled": shuffled}
+    assert sb.info["relabelled"] == shuffled
 
 
 @pytest.mark.parametrize("kind", ["rods", "cloth"])

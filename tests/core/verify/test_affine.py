@@ -95,3 +95,62 @@ def test_unusable_map_says_what_is_wrong(A, b, match):
     V, F = two_sheets(n=3, gap=1.0)
     with pytest.raises(InputError, match=match):
         verify_affine_step(V, V, A, b, faces=F)
+
+
+def _shuffled_sheets(rng, n, gap, pierce=False):
+    V, F = two_sheets(n=n, gap=gap)
+    if pierce:  # a small triangle through the lower sheet: edge-face candidates
+        V = np.r_[V, [[2.5, 2.6, -0.5], [2.9, 2.6, 0.5], [2.5, 3.1, 0.5]]]
+        F = np.r_[F, [[V.shape[0] - 3, V.shape[0] - 2, V.shape[0] - 1]]]
+    V = V + rng.normal(scale=1e-3, size=V.shape)
+    perm = rng.permutation(V.shape[0])  # new vertex k is old vertex perm[k]
+    inv = np.empty_like(perm)
+    inv[perm] = np.arange(perm.size)
+    return np.ascontiguousarray(V[perm]), np.ascontiguousarray(inv[F][rng.permutation(F.shape[0])])
+
+
+@pytest.mark.parametrize("g", [0.0, 0.05, 0.3, 1.5])
+def test_start_pass_of_a_relabelled_scene_gives_the_same_pairs_and_minimum(rng, g):
+    # The start pass on the scene renumbered along a Morton curve: the same edge-face
+    # candidates (taken back to the caller's edges and faces: a triangle pierces a sheet)
+    # and the same minimum, bit for bit. At g = 1.5 the boxes reach across the gap.
+    from penfree.core.contact.broad_phase import start_pass
+    from penfree.core.contact.locality import Relabelling
+    from penfree.core.verify.path import _bodies, _inflation
+
+    V, F = _shuffled_sheets(rng, 7, 1.0, pierce=True)
+    scene = _bodies(V, V, None, F, None)[0]
+    r = Relabelling(V, scene.E, scene.F)
+    infl = _inflation(g, V)
+    for cap in (np.inf, 4.0 * g * g):
+        want, d_want = start_pass(V, scene.E, scene.F, scene.V, infl, cap)
+        got, d_got = start_pass(r.positions(V), r.E, r.F, r.inv[scene.V], infl, cap)
+        np.testing.assert_array_equal(r.edge_face_to_caller(got), want)
+        assert np.float64(d_got).view(np.uint64) == np.float64(d_want).view(np.uint64)
+        assert len(want) >= 2
+
+
+@pytest.mark.parametrize("gap", [0.01, 0.5])
+def test_certificate_path_on_a_relabelled_scene_gives_the_same_verdict(rng, monkeypatch, gap):
+    # Forced on a small scene: the certificate path with a result's neighbour list runs
+    # its fresh start pass on the list's relabelling, and answers as without it.
+    from penfree.core.contact import locality
+    from penfree.core.verify.path import _bodies
+    from penfree.core.verify.reuse import result_lists
+
+    monkeypatch.setattr(locality, "GAP_MIN", -1)
+    monkeypatch.setattr(locality, "GAP_SHARE", 0.0)
+    V, F = _shuffled_sheets(rng, 6, gap)
+    scene = _bodies(V, V, None, F, None)[0]
+    A = np.diag([1.01, 1.0, 0.99])
+    x_def = _affine(V, A, np.zeros(3))
+    nl = result_lists(scene.E, scene.F)
+    for thickness in (0.0, 0.005, 0.02):
+        want = verify_affine_step(V, x_def, A, np.zeros(3), faces=F, thickness=thickness)
+        got = verify_affine_step(V, x_def, A, np.zeros(3), faces=F, thickness=thickness, neighbours=nl)
+        assert (got is None) == (want is None)
+        if want is not None:
+            assert got.to_dict() == want.to_dict()
+    assert nl.relabelling(V) is not None and nl.info["fresh"] > 0
+    assert (gap < 0.02) == (verify_affine_step(V, x_def, A, np.zeros(3), faces=F, thickness=0.02, neighbours=nl)
+                            is None)
