@@ -42,6 +42,7 @@ from penfree.core.trust.stats import query_radius
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "samples"))
 import generate  # noqa: E402
+from bench_neighbours import ipctk_separations  # noqa: E402
 
 
 def shuffled(pos, topo, seed=0):
@@ -121,25 +122,9 @@ def main(argv=None):
                                                         results["penfree, own order", "shuffled"]))
         rows[0] = rows[0][:3] + (rows[0][3] + f"; = own order bit for bit: {same}",)
         if not args.no_ipctk:
-            import ipctk
-
             times = {}
             for name, (E, F, states) in runs.items():
-                Vf = np.asfortranarray(states[0][0])
-                if F.shape[0]:
-                    mesh = ipctk.CollisionMesh(Vf, ipctk.edges(np.asfortranarray(F.astype(np.int32))),
-                                               np.asfortranarray(F.astype(np.int32)))
-                else:
-                    mesh = ipctk.CollisionMesh(Vf, np.asfortranarray(E.astype(np.int32)),
-                                               np.zeros((0, 3), dtype=np.int32, order="F"))
-
-                def peer(x, r, mesh=mesh):
-                    xf = np.asfortranarray(x)
-                    C = ipctk.Candidates()
-                    C.build(mesh, xf, 0.5 * r)
-                    return np.asarray(C.compute_per_vertex_safe_distances(mesh, xf, r, 0.0)).ravel()
-
-                times[name], _ = median_ms(peer, states)
+                times[name], _ = median_ms(ipctk_separations(states[0][0], E, F), states)
             rows.append(("ipctk (r/2)", times["own"], times["shuffled"], ""))
         for method, t_own, t_shuf, note in rows:
             print(f"{scene:<12} {method:<20} {t_own:8.1f} {t_shuf:12.1f} {t_shuf / t_own:12.2f}x  {note}")

@@ -62,6 +62,28 @@ def run(fn, qs):
     return time.perf_counter() - t0, res
 
 
+def ipctk_separations(x0, E, F):
+    """IPC Toolkit's per-vertex safe distances of the scene (rest state `x0`) as
+    ``peer(x, r)``: ``Candidates.build(mesh, x, r / 2)`` + ``compute_per_vertex_safe_distances``."""
+    import ipctk
+
+    Vf = np.asfortranarray(x0)
+    if F.shape[0]:
+        mesh = ipctk.CollisionMesh(Vf, ipctk.edges(np.asfortranarray(F.astype(np.int32))),
+                                   np.asfortranarray(F.astype(np.int32)))
+    else:
+        mesh = ipctk.CollisionMesh(Vf, np.asfortranarray(E.astype(np.int32)),
+                                   np.zeros((0, 3), dtype=np.int32, order="F"))
+
+    def peer(x, r):
+        xf = np.asfortranarray(x)
+        C = ipctk.Candidates()
+        C.build(mesh, xf, 0.5 * r)
+        return np.asarray(C.compute_per_vertex_safe_distances(mesh, xf, r, 0.0)).ravel()
+
+    return peer
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=40)
@@ -99,22 +121,7 @@ def main(argv=None):
                                   f"skin {info['skin']:.3g}, pairs {info['n_pairs']}, equal {same}"))
         t_ip = None
         if not args.no_ipctk:
-            import ipctk
-
-            Vf = np.asfortranarray(qs[0][0])
-            if F.shape[0]:
-                mesh = ipctk.CollisionMesh(Vf, ipctk.edges(np.asfortranarray(F.astype(np.int32))),
-                                           np.asfortranarray(F.astype(np.int32)))
-            else:
-                mesh = ipctk.CollisionMesh(Vf, np.asfortranarray(E.astype(np.int32)),
-                                           np.zeros((0, 3), dtype=np.int32, order="F"))
-
-            def peer(x, r):
-                xf = np.asfortranarray(x)
-                C = ipctk.Candidates()
-                C.build(mesh, xf, 0.5 * r)
-                return np.asarray(C.compute_per_vertex_safe_distances(mesh, xf, r, 0.0)).ravel()
-
+            peer = ipctk_separations(qs[0][0], E, F)
             peer(*qs[0])
             t_ip, res_ip = run(peer, qs)
             dev = max(float(np.max(np.abs(np.minimum(a, r) - b))) for (x, r), a, b in zip(qs, res_ip, ref))
