@@ -30,6 +30,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...errors import InputError
+
 #: `needs_relabelling`: a scene is relabelled when the median label difference of its
 #: edges' endpoints exceeds both of these (random labels give about n / 3; a sheet
 #: numbered row by row gives its row length, about sqrt(n); strands numbered along
@@ -130,8 +132,14 @@ class Relabelling:
         self.face_order = np.argsort(F2.min(axis=1), kind="stable") if F2.size else np.zeros(0, np.int64)
         self.F = np.ascontiguousarray(F2[self.face_order])
 
+    def fits(self, x) -> bool:
+        """Whether `x` has this scene's number of vertices."""
+        return np.shape(x)[0] == self.perm.size
+
     def positions(self, x) -> np.ndarray:
         """(N, 3) float64 C-contiguous: `x` in the new labels."""
+        if not self.fits(x):
+            raise InputError(f"x must be ({self.perm.size}, 3) like the relabelled scene; got {np.shape(x)}")
         return np.ascontiguousarray(np.take(np.asarray(x, dtype=np.float64), self.perm, axis=0))
 
     def to_caller(self, d) -> np.ndarray:

@@ -379,7 +379,7 @@ class NeighbourList:
         beside this list over the same scene (`verify.affine`)."""
         if self._relabel is None:
             self._relabel = relabelling(x, self.E, self.F) or False
-        return self._relabel or None
+        return self._relabel if self._relabel and self._relabel.fits(x) else None
 
     # --- building --------------------------------------------------------------------
 

@@ -326,16 +326,17 @@ class SeparationQuery:
             self._relabel = relabelling(x, self.E, self.F) or False
             self.info["relabelled"] = bool(self._relabel)
         E, F = self.E, self.F
-        if self._relabel:
-            x, E, F = self._relabel.positions(x), self._relabel.E, self._relabel.F
+        relabel = self._relabel if self._relabel and self._relabel.fits(x) else None  # (another N: as given)
+        if relabel:
+            x, E, F = relabel.positions(x), relabel.E, relabel.F
         reach = self.reach if self.reach is not None and self.reach < r else None
         rho = r if reach is None else reach
         cells = self._cells(x, E, F, rho)
         octave = _octave(rho)
         d, axes = _query(x, E, F, r, reach, cells, self._axes_by_octave.get(octave, (None, None)))
         self._axes_by_octave.setdefault(octave, axes)
-        if self._relabel:
-            d = self._relabel.to_caller(d)
+        if relabel:
+            d = relabel.to_caller(d)
         self.info["queries"] += 1
         if reach is not None:
             self.info["reached"] += 1

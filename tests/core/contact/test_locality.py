@@ -10,6 +10,7 @@ from penfree.core.contact import locality
 from penfree.core.contact.locality import Relabelling, morton_order, needs_relabelling, relabelling
 from penfree.core.contact.proximity import SeparationQuery, per_vertex_separation
 from penfree.core.topology import edges_from_faces
+from penfree.errors import InputError
 
 NONE = np.zeros((0, 3), dtype=np.int64)
 
@@ -187,3 +188,19 @@ def test_separation_query_relabels_a_shuffled_scene_once(rng, monkeypatch):
         x = np.ascontiguousarray(Vs + 1e-4 * s)
         np.testing.assert_array_equal(qs(x, 0.02), per_vertex_separation(x, Es, Fs, 0.02))
     assert qs.info["relabelled"] and len(built) == 1
+
+
+def test_a_state_of_another_size_is_queried_as_given(rng, monkeypatch):
+    # The scene relabelled from its first state; a later state with one more (isolated)
+    # vertex does not fit the relabelling and is answered on the scene as given.
+    _force(monkeypatch)
+    (V, E), F = _bundle(rng), NONE
+    q = SeparationQuery(E, F)
+    q(V, 0.03)
+    assert q.info["relabelled"]
+    x = np.ascontiguousarray(np.r_[V, [[9.0, 9.0, 9.0]]])
+    np.testing.assert_array_equal(q(x, 0.03), per_vertex_separation(x, E, F, 0.03))
+    r = Relabelling(V, E, F)
+    assert r.fits(V) and not r.fits(x)
+    with pytest.raises(InputError, match=r"x must be \(540, 3\) like the relabelled scene"):
+        r.positions(x)
