@@ -60,8 +60,9 @@ def morton_order(x) -> np.ndarray:
     if x.shape[0] == 0:
         return np.zeros(0, dtype=np.int64)
     finite = np.isfinite(x).all(axis=1)
-    lo = x[finite].min(axis=0) if finite.any() else np.zeros(3)
-    span = float((x[finite].max(axis=0) - lo).max()) if finite.any() else 0.0
+    xf = x[finite]
+    lo = xf.min(axis=0) if xf.size else np.zeros(3)
+    span = float((xf.max(axis=0) - lo).max()) if xf.size else 0.0
     top = float((1 << _MORTON_BITS) - 1)
     with np.errstate(invalid="ignore"):
         q = (x - lo) * (top / span if span > 0.0 else 0.0)
@@ -140,7 +141,7 @@ class Relabelling:
         """(N, 3) float64 C-contiguous: `x` in the new labels."""
         if not self.fits(x):
             raise InputError(f"x must be ({self.perm.size}, 3) like the relabelled scene; got {np.shape(x)}")
-        return np.ascontiguousarray(np.take(np.asarray(x, dtype=np.float64), self.perm, axis=0))
+        return np.take(np.asarray(x, dtype=np.float64), self.perm, axis=0)  # a new C-contiguous array
 
     def to_caller(self, d) -> np.ndarray:
         """(N,) per-vertex values `d` of the new labels, in the caller's labels."""

@@ -37,11 +37,10 @@ def _start_pass(col, scene, g, relabel=None):
     `locality.Relabelling`, the pass run on it (the same pairs and minimum)."""
     x = scene.x_t0
     apart = apart_sq(g, x)
-    if relabel is None:
-        cand, d2 = start_pass(x, scene.E, scene.F, scene.V, _inflation(g, x), cap_sq=4.0 * apart)
-    else:
-        cand, d2 = start_pass(relabel.positions(x), relabel.E, relabel.F, relabel.inv[scene.V], _inflation(g, x),
-                              cap_sq=4.0 * apart)
+    run = (x, scene.E, scene.F, scene.V) if relabel is None else (
+        relabel.positions(x), relabel.E, relabel.F, relabel.inv[scene.V])
+    cand, d2 = start_pass(*run, _inflation(g, x), cap_sq=4.0 * apart)
+    if relabel is not None:
         cand = relabel.edge_face_to_caller(cand)
     if len(cand):
         edge_face_exact(col, "ef", x, scene.E, scene.F, cand[:, 0], cand[:, 1])
