@@ -4,6 +4,7 @@ primitives, coincident boxes, sparse (hashed) and dense grids."""
 
 import numpy as np
 import pytest
+from numba import njit
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -14,6 +15,7 @@ from penfree.core.contact.broad_phase import (
     vertex_face_candidates,
     vertex_face_candidates_between,
 )
+from penfree.core.parallel import work_counter
 from penfree.core.topology import edges_from_faces
 from penfree.errors import InputError
 
@@ -897,3 +899,64 @@ def test_pairs_overlapping_is_the_queries_box_test():
         assert want.any() and not want.all()
     pairs = edge_edge_candidates(V, V, E, 0.05)
     assert pairs.shape[0] and bp.pairs_overlapping(V, E, E, pairs, 0.05).all()
+
+
+
+def _cluster(rng, n, kind):
+    """`n` disjoint short edges (kind "ee") or triangles ("vf") in a ball of radius 0.05,
+    and their vertices: at an inflation of 0.1 every pair's boxes overlap."""
+    k = 2 if kind == "ee" else 3
+    c = rng.uniform(-0.05, 0.05, size=(n, 1, 3))
+    V = (c + rng.normal(scale=0.01, size=(n, k, 3))).reshape(-1, 3)
+    return np.ascontiguousarray(V), np.arange(n * k, dtype=np.int64).reshape(n, k)
+
+
+@njit
+def _brute_minima(V, TA, TB, self_query, init):
+    # Every non-adjacent pair (j > i in a self query) through the scalar kernels.
+    out = np.full(V.shape[0], init)
+    for i in range(TA.shape[0]):
+        for j in range(i + 1 if self_query else 0, TB.shape[0]):
+            if bp._adjacent(TA, i, TB, j):
+                continue
+            d = bp._pair_sq(V, TA, i, TB, j)
+            for v in TA[i]:
+                out[v] = min(out[v], d)
+            for v in TB[j]:
+                out[v] = min(out[v], d)
+    return out
+
+
+@pytest.mark.parametrize("kind", ["ee", "vf"])
+@pytest.mark.parametrize("cap, flush", [(512, 256), (8, 4), (3, 3), (1, 1)])
+def test_deferred_fold_rows_beyond_its_list(rng, kind, cap, flush):
+    # MODE_MIN folds of edge-edge and vertex-face pairs list each row's pairs and evaluate
+    # them in batches (`_defer_rows`, branch-free kernels). A cluster of 600 primitives
+    # whose boxes all overlap gives rows of 0 to 599 pairs; small lists make every path
+    # run: rows that do not fit in the room left (visited again after the list is
+    # emptied) and rows beyond the whole list (a list of their own). The minima are those
+    # of the fold that evaluates each pair at once (`_min_rows`) and of the brute-force
+    # pairs, bit for bit, from inf and from a cap, on one and two workers.
+    V, T = _cluster(rng, 600, kind)
+    if kind == "ee":
+        TA = TB = T
+        self_query = True
+    else:
+        TA, TB, self_query = np.arange(len(V), dtype=np.int64)[:, None], T, False
+    lo_a, hi_a = bp._box_arrays(V, V, TA, 0.1)
+    lo_b, hi_b = (lo_a, hi_a) if self_query else bp._box_arrays(V, V, TB, 0.1)
+    plan = bp._Plan(lo_a, hi_a, TA, lo_b, hi_b, TB, self_query, 0.1, listing=False)
+    for init in (np.inf, 0.05):
+        want = _brute_minima(V, TA, TB, self_query, init)
+        direct = np.full((2, len(V)), init)
+        bp._min_rows(len(TA), *plan._args(), V, direct, bp.MODE_MIN, 4, work_counter())
+        outs = [direct]
+        for workers in (1, 2):
+            deferred = np.full((workers, len(V)), init)
+            bp._defer_rows(len(TA), *plan._args(), V, deferred, 7, work_counter(), cap, flush)
+            outs.append(deferred)
+        if (cap, flush) == (bp._DEFER_CAP, bp._DEFER_FLUSH):
+            outs.append(np.full((2, len(V)), init))
+            plan.min_sq_into(V, outs[-1])  # the folds' own call
+        for got in outs:
+            np.testing.assert_array_equal(got.min(axis=0).view(np.uint64), want.view(np.uint64))

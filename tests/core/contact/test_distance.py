@@ -19,12 +19,14 @@ from penfree.core.contact.distance import (
     _ee_gap,
     _pt_gap,
     edge_edge_distance,
+    ee_sq_columns,
     edge_edge_sq,
     point_edge_distance,
     point_edge_sq,
     point_point_sq,
     point_triangle_distance,
     point_triangle_sq,
+    pt_sq_columns,
 )
 from penfree.errors import InputError
 
@@ -422,11 +424,11 @@ def _same_bits(a, b):
     return (np.isnan(a) and np.isnan(b)) or a.view(np.uint64) == b.view(np.uint64)
 
 
-def test_numerator_tests_give_the_division_first_bits(rng):
-    # Random primitives at many scales, and the boundary cases: a point projecting
-    # exactly onto an endpoint (t = 0, 1, and just inside or outside by an ulp),
-    # zero-length and collinear segments, parallel and crossing edges, slivers,
-    # squares that overflow to inf, NaN and inf coordinates.
+def _boundary_cases(rng):
+    """(4, 3) float64 arrays: random primitives at many scales, and the boundary cases:
+    a point projecting exactly onto an endpoint (t = 0, 1, and just inside or outside by
+    an ulp), zero-length and collinear segments, parallel and crossing edges, slivers,
+    squares that overflow to inf, NaN and inf coordinates."""
     cases = []
     for scale in (1e-300, 1e-8, 1.0, 1e8, 1e160):
         for _ in range(300):
@@ -439,8 +441,36 @@ def test_numerator_tests_give_the_division_first_bits(rng):
               np.array([a, b, [0.5, -1, 0], [0.5, 1, 0]]), np.array([a, b, [0.5, 0, 1e-30], [0.5 + 1e-30, 0, 0]]),
               np.array([[1e200, 0, 0], a, b, [0, 1e200, 0]]), np.array([[np.nan, 0, 0], a, b, b]),
               np.array([[np.inf, 0, 0], a, b, b]), np.array([a, [np.inf, 0, 0], b, [0, np.inf, 0]])]
+    return [np.ascontiguousarray(c, dtype=np.float64) for c in cases]
+
+
+def test_numerator_tests_give_the_division_first_bits(rng):
+    # The scalar kernels decide clamped cases from numerators before dividing: the
+    # same bits as dividing first, on `_boundary_cases`.
+    cases = _boundary_cases(rng)
     for c in cases:
-        p, q, r, s = (np.ascontiguousarray(v, dtype=np.float64) for v in c)
+        p, q, r, s = c
         assert _same_bits(point_edge_sq(p, q, r), _pe_div(p[0], p[1], p[2], q[0], q[1], q[2], r[0], r[1], r[2]))
         assert _same_bits(edge_edge_sq(p, q, r, s), _ee_div(p, q, r, s))
         assert _same_bits(point_triangle_sq(p, q, r, s), _pt_div(p, q, r, s))
+
+
+def test_branch_free_columns_give_the_scalar_kernels_bits(rng):
+    # `ee_sq_columns` / `pt_sq_columns` (every candidate computed, chosen by selects, the
+    # min folds' deferred pairs) against `_ee` / `_pt` on `_boundary_cases`, with the
+    # pairs' segments and the triangle's corners in every order, and with the columns
+    # at odd offsets of a wider array (a vectorised loop's remainder).
+    cases = _boundary_cases(rng)
+    rows = []
+    for c in cases:
+        for order in ([0, 1, 2, 3], [2, 3, 0, 1], [1, 0, 3, 2], [0, 2, 1, 3], [3, 1, 2, 0]):
+            rows.append(c[order].reshape(12))
+    G = np.ascontiguousarray(np.array(rows).T)
+    for kernel, scalar in ((ee_sq_columns, edge_edge_sq), (pt_sq_columns, point_triangle_sq)):
+        want = np.array([scalar(*r.reshape(4, 3)) for r in rows])
+        for n in (G.shape[1], G.shape[1] - 3, 5, 0):
+            out = np.full(G.shape[1], -1.0)
+            kernel(G, out, n)
+            np.testing.assert_array_equal(out[:n].view(np.uint64), want[:n].view(np.uint64))
+            assert np.all(out[n:] == -1.0)
+        assert np.isnan(want).any() and (want == 0.0).any() and (want > 1e15).any()  # the hard cases are in

@@ -175,7 +175,7 @@ def test_affine_residual_bounds_the_true_residual():
 @pytest.fixture
 def force_parallel(monkeypatch):
     """Run the dual-build kernels' parallel builds even on small inputs."""
-    for k in (nbm._ee_sq, nbm._vf_sq, nbm._listed_min, bp._fill_chunks, bp._gather_chunks, bp._min_rows,
+    for k in (nbm._ee_sq, nbm._vf_sq, nbm._listed_min, bp._fill_chunks, bp._gather_chunks, bp._min_rows, bp._defer_rows,
               bp._grid_count, bp._grid_fill, bp._boxes, bp._corners, bp._cell_ranges_k):
         monkeypatch.setattr(k, "min_work", 0)
     monkeypatch.setattr(bp, "use_parallel", lambda work, min_work=0: numba.get_num_threads() > 1)
