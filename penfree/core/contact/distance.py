@@ -253,73 +253,70 @@ def _pe_select(px, py, pz, ax, ay, az, bx, by, bz):
     return pa if L2 == 0.0 else r
 
 
-@njit(cache=True, forceinline=True, error_model="numpy")
-def _ee_select(ea0x, ea0y, ea0z, ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z):
-    """`_ee` without branches: the same bits (section comment above)."""
-    best = _pe_select(ea0x, ea0y, ea0z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z)
-    d = _pe_select(ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z)
-    best = d if d < best else best
-    d = _pe_select(eb0x, eb0y, eb0z, ea0x, ea0y, ea0z, ea1x, ea1y, ea1z)
-    best = d if d < best else best
-    d = _pe_select(eb1x, eb1y, eb1z, ea0x, ea0y, ea0z, ea1x, ea1y, ea1z)
-    best = d if d < best else best
-    ux = ea1x - ea0x
-    uy = ea1y - ea0y
-    uz = ea1z - ea0z
-    vx = eb1x - eb0x
-    vy = eb1y - eb0y
-    vz = eb1z - eb0z
+@njit(cache=True, forceinline=True)
+def _lower(best, d):
+    # `d` where it is below `best`, as the scalar kernels' ``if d < best: best = d``
+    # (a NaN `best` stays: the candidates are taken in the scalar kernels' order).
+    return d if d < best else best
+
+
+@njit(cache=True, forceinline=True)
+def _normal(ux, uy, uz, vx, vy, vz):
+    # u x v and its squared length, as `_ee` and `_pt` form them.
     nx = uy * vz - uz * vy
     ny = uz * vx - ux * vz
     nz = ux * vy - uy * vx
-    n2 = nx * nx + ny * ny + nz * nz
-    wx = eb0x - ea0x
-    wy = eb0y - ea0y
-    wz = eb0z - ea0z
-    sn = (wy * vz - wz * vy) * nx + (wz * vx - wx * vz) * ny + (wx * vy - wy * vx) * nz
-    tn = (wy * uz - wz * uy) * nx + (wz * ux - wx * uz) * ny + (wx * uy - wy * ux) * nz
+    return nx, ny, nz, nx * nx + ny * ny + nz * nz
+
+
+@njit(cache=True, forceinline=True)
+def _triple(ax, ay, az, bx, by, bz, nx, ny, nz):
+    # (a x b) . n, as `_ee` and `_pt` form their numerators.
+    return (ay * bz - az * by) * nx + (az * bx - ax * bz) * ny + (ax * by - ay * bx) * nz
+
+
+@njit(cache=True, forceinline=True, error_model="numpy")
+def _ee_select(ea0x, ea0y, ea0z, ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z):
+    """`_ee` without branches: the same bits (section comment above)."""
+    best = _lower(_lower(_lower(_pe_select(ea0x, ea0y, ea0z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z),
+                                _pe_select(ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z)),
+                         _pe_select(eb0x, eb0y, eb0z, ea0x, ea0y, ea0z, ea1x, ea1y, ea1z)),
+                  _pe_select(eb1x, eb1y, eb1z, ea0x, ea0y, ea0z, ea1x, ea1y, ea1z))
+    ux, uy, uz = ea1x - ea0x, ea1y - ea0y, ea1z - ea0z
+    vx, vy, vz = eb1x - eb0x, eb1y - eb0y, eb1z - eb0z
+    nx, ny, nz, n2 = _normal(ux, uy, uz, vx, vy, vz)
+    wx, wy, wz = eb0x - ea0x, eb0y - ea0y, eb0z - ea0z
+    sn = _triple(wx, wy, wz, vx, vy, vz, nx, ny, nz)
+    tn = _triple(wx, wy, wz, ux, uy, uz, nx, ny, nz)
     s = sn / n2
     t = tn / n2
     rx = s * ux - t * vx - wx
     ry = s * uy - t * vy - wy
     rz = s * uz - t * vz - wz
-    d = rx * rx + ry * ry + rz * rz
     inside = ((n2 != 0.0) & (sn > 0.0) & (sn < n2) & (tn > 0.0) & (tn < n2)
               & (s > 0.0) & (s < 1.0) & (t > 0.0) & (t < 1.0))
-    return d if inside & (d < best) else best
+    return _lower(best, rx * rx + ry * ry + rz * rz) if inside else best
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
 def _pt_select(px, py, pz, t0x, t0y, t0z, t1x, t1y, t1z, t2x, t2y, t2z):
     """`_pt` without branches: the same bits (section comment above)."""
-    best = _pe_select(px, py, pz, t0x, t0y, t0z, t1x, t1y, t1z)
-    d = _pe_select(px, py, pz, t1x, t1y, t1z, t2x, t2y, t2z)
-    best = d if d < best else best
-    d = _pe_select(px, py, pz, t2x, t2y, t2z, t0x, t0y, t0z)
-    best = d if d < best else best
-    ux = t1x - t0x
-    uy = t1y - t0y
-    uz = t1z - t0z
-    vx = t2x - t0x
-    vy = t2y - t0y
-    vz = t2z - t0z
-    nx = uy * vz - uz * vy
-    ny = uz * vx - ux * vz
-    nz = ux * vy - uy * vx
-    n2 = nx * nx + ny * ny + nz * nz
-    wx = px - t0x
-    wy = py - t0y
-    wz = pz - t0z
-    an = (wy * vz - wz * vy) * nx + (wz * vx - wx * vz) * ny + (wx * vy - wy * vx) * nz
-    bn = (uy * wz - uz * wy) * nx + (uz * wx - ux * wz) * ny + (ux * wy - uy * wx) * nz
+    best = _lower(_lower(_pe_select(px, py, pz, t0x, t0y, t0z, t1x, t1y, t1z),
+                         _pe_select(px, py, pz, t1x, t1y, t1z, t2x, t2y, t2z)),
+                  _pe_select(px, py, pz, t2x, t2y, t2z, t0x, t0y, t0z))
+    ux, uy, uz = t1x - t0x, t1y - t0y, t1z - t0z
+    vx, vy, vz = t2x - t0x, t2y - t0y, t2z - t0z
+    nx, ny, nz, n2 = _normal(ux, uy, uz, vx, vy, vz)
+    wx, wy, wz = px - t0x, py - t0y, pz - t0z
+    an = _triple(wx, wy, wz, vx, vy, vz, nx, ny, nz)
+    bn = _triple(ux, uy, uz, wx, wy, wz, nx, ny, nz)
     a = an / n2
     b = bn / n2
     rx = wx - a * ux - b * vx
     ry = wy - a * uy - b * vy
     rz = wz - a * uz - b * vz
-    d = rx * rx + ry * ry + rz * rz
     inside = (n2 != 0.0) & (an > 0.0) & (bn > 0.0) & (a > 0.0) & (b > 0.0) & (a + b < 1.0)
-    return d if inside & (d < best) else best
+    return _lower(best, rx * rx + ry * ry + rz * rz) if inside else best
 
 
 @njit(cache=True, error_model="numpy")
