@@ -206,9 +206,9 @@ _DENSE_FACTOR = 8
 _CELL_FACTOR = 2.0
 
 MODE_COUNT, MODE_FILL, MODE_MIN, MODE_GLOBAL_MIN, MODE_FILL_EF, MODE_FILL_ALL = 0, 1, 2, 3, 4, 5
-#: `_min_rows`' own mode for MODE_MIN rows of edge-edge or vertex-face pairs: the row's
-#: pairs that pass the bound are listed, and their distances evaluated later in batches
-#: (`_fold_deferred`).
+#: `_defer_rows`' own mode, MODE_MIN of edge-edge or vertex-face pairs deferred: a row's
+#: pairs that pass the box bound are listed, and their distances evaluated later in
+#: batches (`_fold_deferred`).
 MODE_MIN_DEFER = 6
 
 #: The grid's key orders the axes by how often consecutive boxes (in id order) change
