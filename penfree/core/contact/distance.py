@@ -96,6 +96,23 @@ def point_edge_sq(p, e0, e1):
     return _pe(p[0], p[1], p[2], e0[0], e0[1], e0[2], e1[0], e1[1], e1[2])
 
 
+@njit(cache=True, forceinline=True)
+def _normal(ux, uy, uz, vx, vy, vz):
+    # u x v and its squared length: the normal of `_ee`'s two lines, of `_pt`'s
+    # triangle (and of their branch-free copies, which must form it the same way).
+    nx = uy * vz - uz * vy
+    ny = uz * vx - ux * vz
+    nz = ux * vy - uy * vx
+    return nx, ny, nz, nx * nx + ny * ny + nz * nz
+
+
+@njit(cache=True, forceinline=True)
+def _triple(ax, ay, az, bx, by, bz, nx, ny, nz):
+    # (a x b) . n: the numerators of `_ee`'s line parameters and `_pt`'s barycentric
+    # coordinates (and of their branch-free copies).
+    return (ay * bz - az * by) * nx + (az * bx - ax * bz) * ny + (ax * by - ay * bx) * nz
+
+
 @njit(cache=True)
 def _ee(ea0x, ea0y, ea0z, ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z):
     # edge_edge_sq on scalars: callers inside other kernels pass coordinates, not
@@ -121,10 +138,7 @@ def _ee(ea0x, ea0y, ea0z, ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z):
     vx = eb1x - eb0x
     vy = eb1y - eb0y
     vz = eb1z - eb0z
-    nx = uy * vz - uz * vy
-    ny = uz * vx - ux * vz
-    nz = ux * vy - uy * vx
-    n2 = nx * nx + ny * ny + nz * nz
+    nx, ny, nz, n2 = _normal(ux, uy, uz, vx, vy, vz)
     if n2 == 0.0:
         return best
     # Closest points of the two lines: s = ((b0 - a0) x v) . n / |n|^2,
@@ -132,8 +146,8 @@ def _ee(ea0x, ea0y, ea0z, ea1x, ea1y, ea1z, eb0x, eb0y, eb0z, eb1x, eb1y, eb1z):
     wx = eb0x - ea0x
     wy = eb0y - ea0y
     wz = eb0z - ea0z
-    sn = (wy * vz - wz * vy) * nx + (wz * vx - wx * vz) * ny + (wx * vy - wy * vx) * nz
-    tn = (wy * uz - wz * uy) * nx + (wz * ux - wx * uz) * ny + (wx * uy - wy * ux) * nz
+    sn = _triple(wx, wy, wz, vx, vy, vz, nx, ny, nz)
+    tn = _triple(wx, wy, wz, ux, uy, uz, nx, ny, nz)
     # s = sn / n2 and t = tn / n2 in (0, 1) imply 0 < sn, tn < n2 (n2 > 0; rounding is
     # monotone): only those pairs pay the two divisions, and the test on s and t decides.
     if not (sn > 0.0 and sn < n2 and tn > 0.0 and tn < n2):
@@ -182,10 +196,7 @@ def _pt(px, py, pz, t0x, t0y, t0z, t1x, t1y, t1z, t2x, t2y, t2z):
     vx = t2x - t0x
     vy = t2y - t0y
     vz = t2z - t0z
-    nx = uy * vz - uz * vy
-    ny = uz * vx - ux * vz
-    nz = ux * vy - uy * vx
-    n2 = nx * nx + ny * ny + nz * nz
+    nx, ny, nz, n2 = _normal(ux, uy, uz, vx, vy, vz)
     if n2 == 0.0:
         return best
     # Barycentric coordinates of the projection of w = p - t0 onto the plane,
@@ -196,8 +207,8 @@ def _pt(px, py, pz, t0x, t0y, t0z, t1x, t1y, t1z, t2x, t2y, t2z):
     wx = px - t0x
     wy = py - t0y
     wz = pz - t0z
-    an = (wy * vz - wz * vy) * nx + (wz * vx - wx * vz) * ny + (wx * vy - wy * vx) * nz
-    bn = (uy * wz - uz * wy) * nx + (uz * wx - ux * wz) * ny + (ux * wy - uy * wx) * nz
+    an = _triple(wx, wy, wz, vx, vy, vz, nx, ny, nz)
+    bn = _triple(ux, uy, uz, wx, wy, wz, nx, ny, nz)
     # a > 0 and b > 0 imply an > 0 and bn > 0 (n2 > 0): only those pay the divisions.
     if not (an > 0.0 and bn > 0.0):
         return best
@@ -258,21 +269,6 @@ def _lower(best, d):
     # `d` where it is below `best`, as the scalar kernels' ``if d < best: best = d``
     # (a NaN `best` stays: the candidates are taken in the scalar kernels' order).
     return d if d < best else best
-
-
-@njit(cache=True, forceinline=True)
-def _normal(ux, uy, uz, vx, vy, vz):
-    # u x v and its squared length, as `_ee` and `_pt` form them.
-    nx = uy * vz - uz * vy
-    ny = uz * vx - ux * vz
-    nz = ux * vy - uy * vx
-    return nx, ny, nz, nx * nx + ny * ny + nz * nz
-
-
-@njit(cache=True, forceinline=True)
-def _triple(ax, ay, az, bx, by, bz, nx, ny, nz):
-    # (a x b) . n, as `_ee` and `_pt` form their numerators.
-    return (ay * bz - az * by) * nx + (az * bx - ax * bz) * ny + (ax * by - ay * bx) * nz
 
 
 @njit(cache=True, forceinline=True, error_model="numpy")
