@@ -161,3 +161,32 @@ def relabelling(x, E, F) -> Relabelling | None:
     if not needs_relabelling(np.asarray(x).shape[0], E):
         return None
     return Relabelling(x, E, F)
+
+
+class SceneLabels:
+    """Whether the queries of one scene run on its `Relabelling`: decided once, from the
+    first state asked about (`relabelling`), for the classes that query a scene state
+    after state (`proximity.SeparationQuery`, `neighbours.NeighbourList`).
+
+    Examples
+    --------
+    >>> labels = SceneLabels(np.array([[0, 1]]), np.zeros((0, 3), np.int64))
+    >>> labels.for_state(np.zeros((2, 3))) is None, labels.relabelled
+    (True, False)
+    """
+
+    def __init__(self, E, F):
+        self.E, self.F = E, F
+        self._relabel = None  # a `Relabelling`, False (the labels carry locality), None (not decided)
+
+    def for_state(self, x) -> Relabelling | None:
+        """The scene's `Relabelling` for a query at `x`, or None: the labels carry
+        locality, or `x` has another number of vertices (queried as given)."""
+        if self._relabel is None:
+            self._relabel = relabelling(x, self.E, self.F) or False
+        return self._relabel if self._relabel and self._relabel.fits(x) else None
+
+    @property
+    def relabelled(self) -> bool:
+        """Whether the scene was found to need its relabelling (False until decided)."""
+        return bool(self._relabel)

@@ -64,7 +64,7 @@ from numba import njit, prange
 
 from .broad_phase import _PRUNE_SLACK, _box_arrays, _gap_sq, _Plan, fold_pair_min
 from .distance import edge_edge_sq, point_triangle_sq
-from .locality import relabelling
+from .locality import SceneLabels
 from ..parallel import chunk_count, claim, parallel_kernel, work_counter
 from ...errors import InputError
 from ..topology import as_positions, as_topology, scene_edges
@@ -304,7 +304,7 @@ class NeighbourList:
         self._since = 0  # queries since x_ref
         self._growth = np.nan  # reach growth per query, from the recent motion
         self._query = None
-        self._relabel = None  # `relabelling`'s answer for this scene, once asked (False: None)
+        self._labels = SceneLabels(self.E, self.F)
         self.info = {"queries": 0, "builds": 0, "reused": 0, "fresh": 0, "skin": np.nan,
                      "build_radius": np.nan, "n_pairs": 0, "growth": np.nan}
 
@@ -377,9 +377,7 @@ class NeighbourList:
         """The scene's `locality.Relabelling` (decided once, from the first state `x`
         asked about), or None when its labels carry locality: for the fresh passes run
         beside this list over the same scene (`verify.affine`)."""
-        if self._relabel is None:
-            self._relabel = relabelling(x, self.E, self.F) or False
-        return self._relabel if self._relabel and self._relabel.fits(x) else None
+        return self._labels.for_state(x)
 
     # --- building --------------------------------------------------------------------
 

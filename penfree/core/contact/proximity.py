@@ -47,7 +47,7 @@ from ...constants import REDUCTION_CHUNKS
 from ...errors import InputError
 from ..topology import separation_vertices
 from .broad_phase import _box_arrays, _Plan, choose_cells, fold_min_sq
-from .locality import relabelling
+from .locality import SceneLabels
 
 #: Cap on the per-worker partial minima, in float64 entries (32 MiB).
 _PARTIAL_ENTRIES_MAX = 1 << 22
@@ -314,7 +314,7 @@ class SeparationQuery:
         self.reach = None
         self._cells_by_octave = {}
         self._axes_by_octave = {}  # the folds' grid key axis orders, from an octave's first query
-        self._relabel = None  # `locality.Relabelling`, False (the labels are local), None (not decided)
+        self._labels = SceneLabels(self.E, self.F)
         self.info = {"queries": 0, "reached": 0, "completed": 0, "reach": None, "cells": None,
                      "relabelled": False}
 
@@ -322,11 +322,9 @@ class SeparationQuery:
         """(N,) float64 separations at `x` capped at `radius` (`per_vertex_separation`)."""
         x = np.ascontiguousarray(x, dtype=np.float64)
         r = _checked(radius, "radius")
-        if self._relabel is None:
-            self._relabel = relabelling(x, self.E, self.F) or False
-            self.info["relabelled"] = bool(self._relabel)
+        relabel = self._labels.for_state(x)
+        self.info["relabelled"] = self._labels.relabelled
         E, F = self.E, self.F
-        relabel = self._relabel if self._relabel and self._relabel.fits(x) else None  # (another N: as given)
         if relabel:
             x, E, F = relabel.positions(x), relabel.E, relabel.F
         reach = self.reach if self.reach is not None and self.reach < r else None
