@@ -238,10 +238,16 @@ _SAMPLE_MIN_STEP = 8
 #: Buffer slots per chunk: the sampled pairs per row times this, plus a pad.
 _CAP_SLACK = 1.25
 _CAP_PAD = 64
-#: The row scan compacts its box hits first (`_visit_row`) when fewer than this share of
-#: the scanned entries overlap the row's box (64K yarn ~10%: 1.3-1.5x faster; cloth
-#: ~30%: 0.9x), decided on a sample of the rows of plans with at least this many rows.
+#: The row scan compacts its box hits first (`_visit_row`) when fewer than
+#: `_COMPACT_HIT_RATE` of the scanned entries overlap the row's box and a row scans at
+#: least `_COMPACT_MISSES` entries that do not, decided on a sample of the rows of plans
+#: with at least `_COMPACT_MIN_ROWS` rows. The deferred folds of the 64K scenes (issue 13,
+#: Zen 4, one process; misses a row, hit rate, compacted / plain): yarn 70, 12%: 16.0 /
+#: 20.2 ms; shuffled yarn 51, 15%: 16.1 / 24.4; cloth vertex-face 30, 17%: 5.7 / 4.6;
+#: shuffled cloth vertex-face 39, 17%: 9.7 / 8.9; cloth edge-edge 29, 20%: 15.2 / 12.6.
+#: (An earlier host: yarn ~10%: 1.3-1.5x faster; cloth ~30%: 0.9x.)
 _COMPACT_HIT_RATE = 0.2
+_COMPACT_MISSES = 45
 _COMPACT_MIN_ROWS = 4096
 #: Box chunks of the plan's reductions (corners, cell ranges).
 _STAT_CHUNKS = 16
@@ -904,8 +910,16 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, 
                     cell = (cx if dense else x, cy if dense else y, cz if dense else z)
                     n += _scan(mode, i, box, TA, TB, bits, key, ent_key, ent_id, ent_box, ent_clo, compact, gap_off,
                                e0, e1, J, pos + n, lim, V, dmin, buf, skip, corner, cell)
-    # The B boxes outside the grid's scan: all of them for a big row, else the big grid
-    # boxes (one `_record` call site for both).
+    return n + _visit_big(mode, i, brute, self_query, loA, hiA, TA, loB, hiB, TB, bigB, gap_off, J, pos + n, lim,
+                          V, dmin)
+
+
+@njit(cache=True, inline="always")
+def _visit_big(mode, i, brute, self_query, loA, hiA, TA, loB, hiB, TB, bigB, gap_off, J, pos, lim, V, dmin):
+    """Row i's partners among the B boxes outside the grid's scan (`_visit_row`): all of
+    them for a big row (`brute`), else the big grid boxes; recorded from `pos` on, their
+    count returned (one `_record` call site for both)."""
+    n = np.int64(0)
     j0 = i + 1 if self_query else 0
     for t in range(loB.shape[0] - j0 if brute else bigB.shape[0]):
         j = j0 + t if brute else bigB[t]
@@ -915,6 +929,57 @@ def _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, 
             n += 1 if mode == MODE_COUNT else _record(mode, i, j, TA, TB, J, pos + n, lim, V, dmin,
                                                       _big_gap_sq(loA, hiA, i, loB, hiB, j, mode, gap_off))
     return n
+
+
+@njit(cache=True, inline="always")
+def _visit_dense(compact, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB, dims, reach,
+                 boff, cmax, ent_id, ent_box, bigB, gap_off, J, pos, lim, V, dmin, buf):
+    """`_visit_row` in MODE_MIN_DEFER on a dense lower-corner grid (`_defer_dense`): the
+    same partners listed in the same order, by a row visit with none of the other
+    layouts' and modes' tests (`compact` a constant at each call site: the scan with
+    and without compaction compiled apart). The 64K cloth's folds, one thread, same
+    bits: edge-edge 26.2 -> 24.1 ms, vertex-face 12.8 -> 11.0 ms (issue 13)."""
+    n = np.int64(0)
+    brute = not smallA[i]
+    if not brute:
+        lx, ly, lz = loA[i, 0], loA[i, 1], loA[i, 2]
+        hx, hy, hz = hiA[i, 0], hiA[i, 1], hiA[i, 2]
+        cx, cy, cz = cloA[i, 0], cloA[i, 1], cloA[i, 2]
+        x0, x1 = max(cx - reach[0], 0), min(chiA[i, 0], dims[0] - 1)
+        y0, y1 = max(cy - reach[1], 0), min(chiA[i, 1], dims[1] - 1)
+        z0, z1 = max(cz - reach[2], 0), min(chiA[i, 2], dims[2] - 1)
+        for z in range(cz if self_query else z0, z1 + 1):
+            for y in range(cy if self_query and z == cz else y0, y1 + 1):
+                row = dims[0] * (y + dims[1] * z)
+                own = self_query and z == cz and y == cy  # the run starts at row i's own cell
+                xs = cx if own else x0
+                while xs <= x1 and cmax[row + xs] < lx:  # cells whose boxes all end below lx
+                    xs += 1
+                e0 = _first_above(ent_id, boff[row + xs], boff[row + xs + 1], i) if own and xs == cx else boff[row + xs]
+                e1 = boff[row + x1 + 1]
+                s = e0
+                while s < e1:
+                    t = min(e1, s + buf.shape[0]) if compact else e1
+                    nq = t - s
+                    if compact:
+                        nq = 0
+                        for e in range(s, t):
+                            buf[nq] = e
+                            nq += _entry_overlaps(ent_box, e, lx, ly, lz, hx, hy, hz)
+                    for q in range(nq):
+                        e = buf[q] if compact else s + q
+                        if not compact and not _entry_overlaps(ent_box, e, lx, ly, lz, hx, hy, hz):
+                            continue
+                        j = ent_id[e]
+                        if _adjacent(TA, i, TB, j):
+                            continue
+                        u = np.uint64(e)
+                        lb_sq = _gap_sq(lx, ly, lz, hx, hy, hz, ent_box[u, 0], ent_box[u, 1], ent_box[u, 2],
+                                        ent_box[u, 3], ent_box[u, 4], ent_box[u, 5], gap_off)
+                        n += _record(MODE_MIN_DEFER, i, j, TA, TB, J, pos + n, lim, V, dmin, lb_sq)
+                    s = t
+    return n + _visit_big(MODE_MIN_DEFER, i, brute, self_query, loA, hiA, TA, loB, hiB, TB, bigB, gap_off, J,
+                          pos + n, lim, V, dmin)
 
 
 @njit(cache=True, inline="always")
@@ -993,56 +1058,92 @@ def _defer_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
     # skipped against minima lowered since is evaluated, and lowers nothing). A row whose
     # pairs do not fit in the room left of the list's `cap` is visited again, after the
     # list is emptied, into the list or, with more than `cap` pairs, into a list of its
-    # own (`_DEFER_CAP`, `_DEFER_FLUSH`; the tests pass smaller ones).
+    # own (`_listed_row`; `_DEFER_CAP`, `_DEFER_FLUSH`; the tests pass smaller ones).
     m = loA.shape[0]
     for w in prange(partial.shape[0]):
-        buf = np.empty(_SCAN_BLOCK, dtype=np.int64)
-        J = np.empty(cap, dtype=np.int64)  # the listed pairs' partners, row after row
-        rows = np.empty(cap, dtype=np.int64)  # the listed rows, and where their pairs start
-        starts = np.empty(cap, dtype=np.int64)
-        # (rows of cap + 8: at 512 the twelve rows of a column lay 4 KiB apart, in one L1
-        # set, and the gather ran 2.2x slower)
-        G = np.empty((12, cap + 8))
-        dist = np.empty(cap)
+        buf, J, rows, starts, G, dist = _defer_buffers(cap)
         dmin = partial[w]
-        pos = 0
-        nr = 0
-        own = 0  # > 0: the next row's pairs, this many, go to a list of their own
+        pos = nr = own = 0
         c = claim(counter)
         while c < n_chunks:
             i = c * m // n_chunks
             end = (c + 1) * m // n_chunks
             while i < end:
-                Jr, at, lim = J, pos, cap
-                if own:
-                    Jr, at, lim = np.empty(own, dtype=np.int64), 0, own
+                Jr, at, lim = (np.empty(own, dtype=np.int64), 0, own) if own else (J, pos, cap)
                 n = _visit_row(MODE_MIN_DEFER, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
                                dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
                                Jr, at, lim, V, dmin, buf)
-                if own:
-                    one = np.full(1, i, dtype=np.int64)
-                    _fold_deferred(V, TA, TB, one, np.zeros(1, dtype=np.int64), 1, n, Jr, np.empty((12, n + 8)),
-                                   np.empty(n), dmin)
-                    own = 0
-                elif pos + n > cap:  # the row's pairs did not all fit: empty the list, visit it again
-                    _fold_deferred(V, TA, TB, rows, starts, nr, pos, J, G, dist, dmin)
-                    pos = 0
-                    nr = 0
-                    own = n if n > cap else 0
-                    continue
-                elif n:
-                    rows[nr] = i
-                    starts[nr] = pos
-                    nr += 1
-                    pos += n
-                    if pos >= flush:
-                        _fold_deferred(V, TA, TB, rows, starts, nr, pos, J, G, dist, dmin)
-                        pos = 0
-                        nr = 0
-                i += 1
+                pos, nr, own, done = _listed_row(i, n, own, Jr, pos, nr, J, rows, starts, G, dist, cap, flush, V, TA,
+                                                 TB, dmin)
+                i += done
             c = claim(counter)
         if nr:
             _fold_deferred(V, TA, TB, rows, starts, nr, pos, J, G, dist, dmin)
+
+
+def _defer_dense_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
+                    dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off, V,
+                    partial, n_chunks, counter, cap, flush):
+    # `_defer_rows_py` on a dense lower-corner grid (`_Plan.min_sq_into` picks it): the
+    # rows visited by `_visit_dense`, with and without compaction compiled apart.
+    m = loA.shape[0]
+    for w in prange(partial.shape[0]):
+        buf, J, rows, starts, G, dist = _defer_buffers(cap)
+        dmin = partial[w]
+        pos = nr = own = 0
+        c = claim(counter)
+        while c < n_chunks:
+            i = c * m // n_chunks
+            end = (c + 1) * m // n_chunks
+            while i < end:
+                Jr, at, lim = (np.empty(own, dtype=np.int64), 0, own) if own else (J, pos, cap)
+                if compact:
+                    n = _visit_dense(True, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB, dims, reach,
+                                     boff, cmax, ent_id, ent_box, bigB, gap_off, Jr, at, lim, V, dmin, buf)
+                else:
+                    n = _visit_dense(False, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB, dims, reach,
+                                     boff, cmax, ent_id, ent_box, bigB, gap_off, Jr, at, lim, V, dmin, buf)
+                pos, nr, own, done = _listed_row(i, n, own, Jr, pos, nr, J, rows, starts, G, dist, cap, flush, V, TA,
+                                                 TB, dmin)
+                i += done
+            c = claim(counter)
+        if nr:
+            _fold_deferred(V, TA, TB, rows, starts, nr, pos, J, G, dist, dmin)
+
+
+@njit(cache=True, inline="always")
+def _defer_buffers(cap):
+    """A deferred fold's worker scratch: the scan block, the listed pairs' partners (row
+    after row), the listed rows and where their pairs start, the gathered coordinates
+    and the distances (`_fold_deferred`)."""
+    # (rows of cap + 8: at 512 the twelve rows of a column lay 4 KiB apart, in one L1
+    # set, and the gather ran 2.2x slower)
+    return (np.empty(_SCAN_BLOCK, dtype=np.int64), np.empty(cap, dtype=np.int64), np.empty(cap, dtype=np.int64),
+            np.empty(cap, dtype=np.int64), np.empty((12, cap + 8)), np.empty(cap))
+
+
+@njit(cache=True, inline="always")
+def _listed_row(i, n, own, Jr, pos, nr, J, rows, starts, G, dist, cap, flush, V, TA, TB, dmin):
+    """After row i listed its `n` pairs (into `Jr`: the list `J` from `pos` on, or with
+    `own` > 0 a list of its own): ``(pos, nr, own, done)``, the list's state and whether
+    the row is done (0: visit it again, after the list was emptied because the row's
+    pairs did not fit; `own` > 0 then when they exceed the whole list)."""
+    if own:
+        _fold_deferred(V, TA, TB, np.full(1, i, dtype=np.int64), np.zeros(1, dtype=np.int64), 1, n, Jr,
+                       np.empty((12, n + 8)), np.empty(n), dmin)
+        return pos, nr, 0, 1
+    if pos + n > cap:
+        _fold_deferred(V, TA, TB, rows, starts, nr, pos, J, G, dist, dmin)
+        return 0, 0, n if n > cap else 0, 0
+    if n:
+        rows[nr] = i
+        starts[nr] = pos
+        nr += 1
+        pos += n
+        if pos >= flush:
+            _fold_deferred(V, TA, TB, rows, starts, nr, pos, J, G, dist, dmin)
+            return 0, 0, 0, 1
+    return pos, nr, 0, 1
 
 
 @njit(cache=True)
@@ -1096,6 +1197,7 @@ def _deferred_vertices(edges, TA, i, TB, j):
 _fill_chunks = parallel_kernel(_fill_chunks_py, "_bp_fill_chunks", _PARALLEL_MIN_ROWS)
 _min_rows = parallel_kernel(_min_rows_py, "_bp_min_rows", _PARALLEL_MIN_ROWS)
 _defer_rows = parallel_kernel(_defer_rows_py, "_bp_defer_rows", _PARALLEL_MIN_ROWS)
+_defer_dense = parallel_kernel(_defer_dense_py, "_bp_defer_dense", _PARALLEL_MIN_ROWS)
 
 
 @njit(cache=True, forceinline=True)
@@ -1597,12 +1699,13 @@ class _Plan:
         self.compact = False
         nA = loA.shape[0]
         if nA >= _COMPACT_MIN_ROWS:
-            # The scan compacts its box hits first where few entries hit (a sample of
-            # the rows' buckets; the choice changes the time, never the pairs).
+            # The scan compacts its box hits first where few of many entries hit (a
+            # sample of the rows' buckets; the choice changes the time, never the pairs).
             rows = np.arange(0, nA, max(1, nA // _SAMPLE_ROWS), dtype=np.int64)
             scanned, hits = _hit_rate(rows, self.self_query, loA, hiA, cloA, chiA, smallA, self.dims,
                                       self.bits, self.reach, self.boff, self.ent_id, self.ent_box)
-            self.compact = bool(hits < _COMPACT_HIT_RATE * scanned)
+            misses = scanned - hits
+            self.compact = bool(hits < _COMPACT_HIT_RATE * scanned and misses >= _COMPACT_MISSES * rows.shape[0])
 
     def with_rows(self, loA, hiA, TA, inflation):
         """This plan's grid of the B boxes queried by other rows A (boxes inflated by
@@ -1693,7 +1796,9 @@ class _Plan:
             m = self.loA.shape[0]
             chunks = chunk_count(m, _MIN_CHUNKS, _MIN_CHUNK_ROWS)
             if mode == MODE_MIN and (self.TA.shape[1], self.TB.shape[1]) in _DEFERRED_WIDTHS:
-                _defer_rows(m, *self._args(), V, partial, chunks, work_counter(), _DEFER_CAP, _DEFER_FLUSH)
+                dense = self.bits < 0 and self.ent_clo.shape[0] == 0  # a dense lower-corner grid
+                (_defer_dense if dense else _defer_rows)(m, *self._args(), V, partial, chunks, work_counter(),
+                                                         _DEFER_CAP, _DEFER_FLUSH)
             else:
                 _min_rows(m, *self._args(), V, partial, mode, chunks, work_counter())
 

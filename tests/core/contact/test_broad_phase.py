@@ -599,14 +599,23 @@ def _bundle(k=20, per=16, spacing=0.25):
 
 def test_plan_chooses_the_compacted_scan_where_few_entries_hit(rng):
     # A bundle of thin rods (~4% of the scanned entries hit): compacted; wavy rods
-    # (~38%): not. Either way the pairs are the brute force's. Plans below
-    # _COMPACT_MIN_ROWS rows never compact.
-    cases = [(*_bundle(), 0.2, True), (*rods(40, 120, rng), 0.001, False)]
-    for V, E, inflation, compact in cases:
+    # (~38%): not; a sheet's min fold (~19%, but ~30 entries a row that miss, fewer
+    # than _COMPACT_MISSES): not. Either way the pairs are the brute force's. Plans
+    # below _COMPACT_MIN_ROWS rows never compact.
+    V, F = cloth(70, rng)
+    cases = [(*_bundle(), 0.2, True, True), (*rods(40, 120, rng), 0.001, False, True),
+             (V, edges_from_faces(F), 0.004, False, False)]
+    for V, E, inflation, compact, listing in cases:
         lo, hi = bp._box_arrays(V, V, E, inflation)
         assert len(E) >= bp._COMPACT_MIN_ROWS
-        plan = bp._Plan(lo, hi, E, lo, hi, E, True)
+        plan = bp._Plan(lo, hi, E, lo, hi, E, True, inflation, listing=listing)
         assert plan.compact is compact
+        if not listing:  # few hits, but few entries scanned a row: the plain scan
+            rows = np.arange(0, len(E), len(E) // bp._SAMPLE_ROWS)
+            scanned, hits = bp._hit_rate(rows, True, plan.loA, plan.hiA, plan.cloA, plan.chiA, plan.smallA, plan.dims,
+                                         plan.bits, plan.reach, plan.boff, plan.ent_id, plan.ent_box)
+            assert hits < bp._COMPACT_HIT_RATE * scanned and scanned - hits < bp._COMPACT_MISSES * len(rows)
+            continue
         pairs = plan.pairs()
         assert len(pairs) > 0
         np.testing.assert_array_equal(pairs, edge_edge_candidates_brute(V, V, E, inflation))
@@ -925,6 +934,57 @@ def _brute_minima(V, TA, TB, self_query, init):
             for v in TB[j]:
                 out[v] = min(out[v], d)
     return out
+
+
+def _with_spanning(V, T, k, rng):
+    """`T` plus `k` primitives of `T`'s width whose vertices lie far apart across the
+    bounding box of `V` (new vertices appended): boxes too big for a fold's grid."""
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    W = rng.uniform(lo, hi, size=(k * T.shape[1], 3))
+    W[::T.shape[1]] = lo + 0.05 * (hi - lo) * rng.uniform(size=(k, 3))  # a corner to the far side
+    new = len(V) + np.arange(k * T.shape[1], dtype=np.int64).reshape(k, T.shape[1])
+    return np.concatenate([V, W]), np.concatenate([T, new])
+
+
+@pytest.mark.parametrize("kind", ["rods", "folded-cloth"])
+@pytest.mark.parametrize("compact", [False, True])
+def test_dense_deferred_fold_gives_the_generic_folds_bits(rng, kind, compact):
+    # `_defer_dense`, the deferred fold with its own row visit for dense lower-corner
+    # grids (`_visit_dense`, picked by `_Plan.min_sq_into`), against the generic deferred
+    # fold (`_defer_rows`), the fold that evaluates each pair at once (`_min_rows`) and
+    # brute force, bit for bit: with and without compaction, one and two workers, the
+    # folds' own list and a list of 8 (rows visited again). Primitives spanning the scene
+    # are too big for the grid: rows against every box, partners of every small row.
+    V, E, F = _scene(kind, rng)
+    V, E = _with_spanning(V, E, 3, rng)
+    sets = [(E, E, True)]
+    if len(F):
+        V, F = _with_spanning(V, F, 3, rng)
+        sets.append((np.arange(len(V), dtype=np.int64)[:, None], F, False))
+    for TA, TB, self_query in sets:
+        lo_a, hi_a = bp._box_arrays(V, V, TA, 0.01)
+        lo_b, hi_b = (lo_a, hi_a) if self_query else bp._box_arrays(V, V, TB, 0.01)
+        plan = bp._Plan(lo_a, hi_a, TA, lo_b, hi_b, TB, self_query, 0.01, listing=False)
+        assert plan.bits < 0 and plan.ent_clo.shape[0] == 0  # dense, lower-corner: `_defer_dense`'s grid
+        assert len(plan.bigB) > 0 and (self_query or plan.smallA.all())
+        plan.compact = compact
+        # from a cap below the boxes' reach (every pair that lowers a minimum overlaps: the
+        # brute force's minima), and from inf (the direct fold's: farther pairs may be skipped)
+        for init in (1e-4, np.inf):
+            direct = np.full((2, len(V)), init)
+            bp._min_rows(len(TA), *plan._args(), V, direct, bp.MODE_MIN, 4, work_counter())
+            want = _brute_minima(V, TA, TB, self_query, init) if init < np.inf else direct.min(axis=0)
+            outs = [direct]
+            for kernel in (bp._defer_rows, bp._defer_dense):
+                for workers, cap, flush in ((1, bp._DEFER_CAP, bp._DEFER_FLUSH), (2, bp._DEFER_CAP, bp._DEFER_FLUSH),
+                                            (2, 8, 4)):
+                    outs.append(np.full((workers, len(V)), init))
+                    kernel(len(TA), *plan._args(), V, outs[-1], 7, work_counter(), cap, flush)
+            outs.append(np.full((2, len(V)), init))
+            plan.min_sq_into(V, outs[-1])  # the folds' own call: `_defer_dense`
+            assert np.any(want < init)
+            for got in outs:
+                np.testing.assert_array_equal(got.min(axis=0).view(np.uint64), want.view(np.uint64))
 
 
 @pytest.mark.parametrize("kind", ["ee", "vf"])

@@ -176,7 +176,7 @@ def test_affine_residual_bounds_the_true_residual():
 def force_parallel(monkeypatch):
     """Run the dual-build kernels' parallel builds even on small inputs."""
     for k in (nbm._ee_sq, nbm._vf_sq, nbm._listed_min, bp._fill_chunks, bp._gather_chunks, bp._min_rows, bp._defer_rows,
-              bp._grid_count, bp._grid_fill, bp._boxes, bp._corners, bp._cell_ranges_k):
+              bp._defer_dense, bp._grid_count, bp._grid_fill, bp._boxes, bp._corners, bp._cell_ranges_k):
         monkeypatch.setattr(k, "min_work", 0)
     monkeypatch.setattr(bp, "use_parallel", lambda work, min_work=0: numba.get_num_threads() > 1)
     yield
@@ -189,6 +189,7 @@ def test_identical_for_one_and_two_threads(force_parallel, monkeypatch, compact)
     separations and listed queries: the same bits on 1 and 2 threads."""
     monkeypatch.setattr(bp, "_COMPACT_MIN_ROWS", 0)
     monkeypatch.setattr(bp, "_COMPACT_HIT_RATE", 1.01 if compact else 0.0)
+    monkeypatch.setattr(bp, "_COMPACT_MISSES", 0)
     rng = np.random.default_rng(3)
     V, F = sheet(30, rng)
     _, E, F = scene_arrays(V, None, F)

@@ -67,6 +67,7 @@ def test_claimed_chunks_give_the_same_bits(rng, monkeypatch, chunk_rows, max_chu
     monkeypatch.setattr(bp, "_MIN_CHUNKS", max_chunks)
     monkeypatch.setattr(bp._min_rows, "min_work", 0)
     monkeypatch.setattr(bp._defer_rows, "min_work", 0)
+    monkeypatch.setattr(bp._defer_dense, "min_work", 0)
     monkeypatch.setattr(proximity, "partial_chunks", lambda n: workers)
     old = numba.get_num_threads()
     try:
