@@ -242,10 +242,10 @@ _CAP_PAD = 64
 #: `_COMPACT_HIT_RATE` of the scanned entries overlap the row's box and a row scans at
 #: least `_COMPACT_MISSES` entries that do not, decided on a sample of the rows of plans
 #: with at least `_COMPACT_MIN_ROWS` rows. The deferred folds of the 64K scenes (issue 13,
-#: Zen 4, one process; misses a row, hit rate, compacted / plain): yarn 70, 12%: 16.0 /
-#: 20.2 ms; shuffled yarn 51, 15%: 16.1 / 24.4; cloth vertex-face 30, 17%: 5.7 / 4.6;
-#: shuffled cloth vertex-face 39, 17%: 9.7 / 8.9; cloth edge-edge 29, 20%: 15.2 / 12.6.
-#: (An earlier host: yarn ~10%: 1.3-1.5x faster; cloth ~30%: 0.9x.)
+#: Zen 4, one process; misses a row, hit rate, compacted / plain): yarn 70, 12%: 15.6 /
+#: 19.9 ms; shuffled yarn 51, 15%: 15.6 / 23.6; cloth vertex-face 30, 17%: 5.5 / 4.6;
+#: shuffled cloth vertex-face 39, 17%: 7.2-7.7 / 6.9-7.3; cloth edge-edge 29, 20%: 15.3 /
+#: 13.1. (An earlier host: yarn ~10%: 1.3-1.5x faster; cloth ~30%: 0.9x.)
 _COMPACT_HIT_RATE = 0.2
 _COMPACT_MISSES = 45
 _COMPACT_MIN_ROWS = 4096
@@ -936,9 +936,10 @@ def _visit_dense(compact, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, 
                  boff, cmax, ent_id, ent_box, bigB, gap_off, J, pos, lim, V, dmin, buf):
     """`_visit_row` in MODE_MIN_DEFER on a dense lower-corner grid (`_defer_dense`): the
     same partners listed in the same order, by a row visit with none of the other
-    layouts' and modes' tests (`compact` a constant at each call site: the scan with
-    and without compaction compiled apart). The 64K cloth's folds, one thread, same
-    bits: edge-edge 26.2 -> 24.1 ms, vertex-face 12.8 -> 11.0 ms (issue 13)."""
+    layouts' and modes' tests. The 64K cloth's folds, one thread, same bits: edge-edge
+    26.2 -> 25.0 ms, vertex-face 12.8 -> 11.0 ms (issue 13). (Compiled twice, once for
+    each value of `compact`, the edge-edge fold ran 1.05x faster still, but the first
+    query of a fresh install compiled for 44-50 s instead of 28 s.)"""
     n = np.int64(0)
     brute = not smallA[i]
     if not brute:
@@ -1084,8 +1085,9 @@ def _defer_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
 def _defer_dense_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
                     dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off, V,
                     partial, n_chunks, counter, cap, flush):
-    # `_defer_rows_py` on a dense lower-corner grid (`_Plan.min_sq_into` picks it): the
-    # rows visited by `_visit_dense`, with and without compaction compiled apart.
+    # `_defer_rows_py` on a dense lower-corner grid (`_Plan.min_sq_into` picks it), the
+    # rows visited by `_visit_dense`. (One kernel with both visits compiled for 82 s
+    # instead of 44 on a fresh install: the shared list handling is `_listed_row`.)
     m = loA.shape[0]
     for w in prange(partial.shape[0]):
         buf, J, rows, starts, G, dist = _defer_buffers(cap)
@@ -1097,12 +1099,8 @@ def _defer_dense_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
             end = (c + 1) * m // n_chunks
             while i < end:
                 Jr, at, lim = (np.empty(own, dtype=np.int64), 0, own) if own else (J, pos, cap)
-                if compact:
-                    n = _visit_dense(True, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB, dims, reach,
-                                     boff, cmax, ent_id, ent_box, bigB, gap_off, Jr, at, lim, V, dmin, buf)
-                else:
-                    n = _visit_dense(False, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB, dims, reach,
-                                     boff, cmax, ent_id, ent_box, bigB, gap_off, Jr, at, lim, V, dmin, buf)
+                n = _visit_dense(compact, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB, dims, reach,
+                                 boff, cmax, ent_id, ent_box, bigB, gap_off, Jr, at, lim, V, dmin, buf)
                 pos, nr, own, done = _listed_row(i, n, own, Jr, pos, nr, J, rows, starts, G, dist, cap, flush, V, TA,
                                                  TB, dmin)
                 i += done
