@@ -936,10 +936,11 @@ def _visit_dense(compact, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, 
                  boff, cmax, ent_id, ent_box, bigB, gap_off, J, pos, lim, V, dmin, buf):
     """`_visit_row` in MODE_MIN_DEFER on a dense lower-corner grid (`_defer_dense`): the
     same partners listed in the same order, by a row visit with none of the other
-    layouts' and modes' tests. The 64K cloth's folds, one thread, same bits: edge-edge
-    26.2 -> 25.0 ms, vertex-face 12.8 -> 11.0 ms (issue 13). (Compiled twice, once for
-    each value of `compact`, the edge-edge fold ran 1.05x faster still, but the first
-    query of a fresh install compiled for 44-50 s instead of 28 s.)"""
+    layouts' and modes' tests. The 64K cloth's folds against `_defer_rows`, one thread,
+    the same compaction, same bits: edge-edge 25.9 -> 25.4 ms, vertex-face 9.6 -> 9.0 ms
+    (issue 13). (Compiled twice, once for each value of `compact`, the edge-edge fold ran
+    1.05x faster still, but the first query of a fresh install compiled for 44-50 s
+    instead of 28 s.)"""
     n = np.int64(0)
     brute = not smallA[i]
     if not brute:
