@@ -3,7 +3,10 @@ and outputs of the several-inputs path equal a serial run dataset by dataset (th
 oracle), for deform (with the selection table and stats), verify and report."""
 
 import builtins
+import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import h5py
@@ -226,6 +229,40 @@ def test_failed_task_names_file_and_frames(tmp_path, scheduler):
         with pytest.raises(InputError, match=r"rods\.h5 frames 5:9"):
             scaleout.run_tasks(c, scaleout.deform_task, [Task(path, 5, 9)], (str(tmp_path), bad, False, 1))
 
+
+_FAULTS_PER_BLOCK = """
+import resource, numpy as np
+from penfree.scaleout.cluster import set_threads
+def faults():  # minor page faults per 8 MiB block allocated, filled and freed
+    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(8):
+        a = np.ones(1 << 20)
+        del a
+    return (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0) / 8
+before = faults()
+set_threads(None)
+faults()
+print(before, faults())
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc settings")
+def test_worker_tasks_keep_freed_blocks_under_the_nannys_malloc_settings():
+    # Dask's nanny starts each worker with its `pre-spawn-environ`, which tells glibc to
+    # trim freed memory at once (MALLOC_TRIM_THRESHOLD_): every scratch block of every step
+    # then came back as fresh pages, faulted in one at a time (a 64K x 50 recording's
+    # task 1.2-1.3x slower than in the CLI's process). A task's set-up undoes it.
+    dask = pytest.importorskip("dask")
+    import distributed  # noqa: F401  (its defaults are dask's config)
+
+    environ = {k: str(v) for k, v in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()}
+    if "MALLOC_TRIM_THRESHOLD_" not in environ:
+        pytest.skip("this Dask does not set glibc's trim threshold on its workers")
+    out = subprocess.run([sys.executable, "-c", _FAULTS_PER_BLOCK], env={**os.environ, **environ},
+                         capture_output=True, text=True, check=True).stdout.split()
+    before, after = float(out[0]), float(out[1])
+    assert before >= 128, f"precondition: the nanny's setting makes each block fault ({before} faults)"
+    assert after <= 8, f"{after} faults per block after a task's set-up"
 
 def test_without_dask_one_line_and_exit_2(inputs, tmp_path, monkeypatch):
     _no_dask(monkeypatch)

@@ -144,6 +144,16 @@ def _one_line(exc) -> str:
 
 
 def set_threads(threads):
+    """A task's set-up on its worker: Numba's thread count (`threads`, when given) and
+    freed blocks kept in the heap (`retain_freed_memory`, as the CLI's process does).
+
+    A Dask worker is a process of its own, and its nanny starts it with glibc told to
+    give freed memory back at once (``MALLOC_TRIM_THRESHOLD_``): without this, every
+    scratch array of every step came back as fresh pages, faulted in one at a time.
+    """
+    from ..core.memory import retain_freed_memory
+
+    retain_freed_memory()
     if threads:
         import numba
 

@@ -80,6 +80,7 @@ def merge_task(path, out_path, parts, options):
     from ..formats.frames import StoredFrames
     from ..formats.hdf5 import read_whole_shape
 
+    set_threads(None)
     steps, groups = merge_partials(sorted(parts), stream=True)
     seq = read_sequence(path, format=options.get("format"), frame_window=(0, 2))  # all but the frames, validated
     with h5py.File(path, "r") as f:
