@@ -23,12 +23,13 @@ checks and the result. None of it is optional in SPEC sections 4-5 and 10.
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 from numba import njit, prange
 
 import penfree
+
+from bench_fit import aligned_empty_like, timings
 
 _FM = {"reassoc", "contract"}  # the flags of penfree's fit passes (`kernels._FIT_FASTMATH`)
 
@@ -101,13 +102,7 @@ def _stripped_apply(x, A, b, out, n_chunks):
 
 
 def _median_us(fn, repeats):
-    fn()
-    ts = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
-    return 1e6 * float(np.median(ts))
+    return 1e6 * float(np.median(timings(fn, repeats)))
 
 
 def main(argv=None):
@@ -121,9 +116,7 @@ def main(argv=None):
     x_prev = (x + 0.01 * rng.standard_normal(x.shape)).astype(np.float32)
     flat, flat_prev = x.reshape(-1), x_prev.reshape(-1)
     out = np.empty_like(x)
-    buf = np.empty(flat.size + 16, dtype=np.float32)  # 64-byte aligned, as bench_fit.py's floor
-    off = (-buf.ctypes.data % 64) // 4
-    buf = buf[off:off + flat.size]
+    buf = aligned_empty_like(flat)  # as bench_fit.py's floor
     A, b = np.eye(3), np.zeros(3)
     jobs = {
         "floor": lambda: np.add(flat_prev, flat, out=buf),
