@@ -232,7 +232,7 @@ def test_failed_task_names_file_and_frames(tmp_path, scheduler):
 
 _FAULTS_PER_BLOCK = """
 import resource, numpy as np
-from penfree.scaleout.cluster import set_threads
+from penfree.scaleout.cluster import task_setup
 def faults():  # minor page faults per 8 MiB block allocated, filled and freed
     f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     for _ in range(8):
@@ -240,7 +240,7 @@ def faults():  # minor page faults per 8 MiB block allocated, filled and freed
         del a
     return (resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0) / 8
 before = faults()
-set_threads(None)
+task_setup(None)
 faults()
 print(before, faults())
 """

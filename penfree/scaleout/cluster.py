@@ -143,7 +143,7 @@ def _one_line(exc) -> str:
     return " ".join(str(exc).split())
 
 
-def set_threads(threads):
+def task_setup(threads):
     """A task's set-up on its worker: Numba's thread count (`threads`, when given) and
     freed blocks kept in the heap (`retain_freed_memory`, as the CLI's process does).
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..formats.partials import is_per_vertex, merge_partials, write_partial
-from .cluster import client, gather, n_workers_of, new_key, set_threads
+from .cluster import client, gather, n_workers_of, new_key, task_setup
 from .plan import deform_outputs, expand_inputs, plan
 
 # --- deform ------------------------------------------------------------------------
@@ -23,7 +23,7 @@ def _deform(task, options, with_stats, threads):
     from ..core.pipeline.deform import deform_sequence, deform_stats
     from ..formats import read_sequence
 
-    set_threads(threads)
+    task_setup(threads)
     first = 0  # the file's frame number of the first frame read
     if task.lo is None:
         seq = read_sequence(task.path, format=options.get("format"))
@@ -80,7 +80,7 @@ def merge_task(path, out_path, parts, options):
     from ..formats.frames import StoredFrames
     from ..formats.hdf5 import read_whole_shape
 
-    set_threads(None)
+    task_setup(None)
     steps, groups = merge_partials(sorted(parts), stream=True)
     seq = read_sequence(path, format=options.get("format"), frame_window=(0, 2))  # all but the frames, validated
     with h5py.File(path, "r") as f:

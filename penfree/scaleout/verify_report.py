@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from .cluster import client, n_workers_of, run_tasks, set_threads
+from .cluster import client, n_workers_of, run_tasks, task_setup
 from .plan import expand_inputs, plan
 
 # --- verify and report ---------------------------------------------------------------
@@ -16,7 +16,7 @@ def verify_task(task, options, threads):
     its steps use (HDF5 `frame_window`: ranges are made of HDF5 files only, `plan`)."""
     from ..core.pipeline.verification import verify_file
 
-    set_threads(threads)
+    task_setup(threads)
     frames, window = (options["frames"], None) if task.lo is None else (None, task.frames())
     return verify_file(task.path, thickness=options["thickness"], frames=frames, mode=options["mode"],
                        max_pairs=options["max_pairs"], strict=options.get("strict", False), window=window,
@@ -61,7 +61,7 @@ def report_task(task, options, threads):
     the file's steps from ``options["decisions"][path]``."""
     from ..report.build import file_part, make_file_report, open_result, read_range, select_steps
 
-    set_threads(threads)
+    task_setup(threads)
     common = dict(replay=options["replay"], ladder=options["ladder"], client=options.get("client"),
                   use_stored_stats=options.get("use_stored_stats", True),
                   verify_paths=options.get("verify_paths", False), progress=options.get("progress"))
