@@ -127,6 +127,7 @@ brute-force oracles live in ``tests/oracles.py``.
 from __future__ import annotations
 
 import copy
+import types
 from typing import NamedTuple
 
 import numba
@@ -164,7 +165,7 @@ _BIG_ROW_CELLS = 512
 _BIG_CELLS = 64
 #: Row scans in blocks of this many entries (the compacted scan's scratch, `_scan`).
 _SCAN_BLOCK = 256
-#: MODE_MIN's deferred pairs (`_defer_rows_py`): a worker lists up to `_DEFER_CAP` pairs of
+#: MODE_MIN's deferred pairs (`_deferred_py`): a worker lists up to `_DEFER_CAP` pairs of
 #: its rows and evaluates them once `_DEFER_FLUSH` are listed. 64K cloth, edge-edge fold,
 #: one thread, same bits: a throwaway prototype of the fold ran 32.7 ms evaluating each
 #: pair at once and 22.2 / 20.9 / 20.4 ms listing batches of 64 / 128 / 256 pairs.
@@ -932,11 +933,14 @@ def _visit_big(mode, i, brute, self_query, loA, hiA, TA, loB, hiB, TB, bigB, gap
 
 
 @njit(cache=True, inline="always")
-def _visit_dense(compact, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB, dims, reach,
-                 boff, cmax, ent_id, ent_box, bigB, gap_off, J, pos, lim, V, dmin, buf):
+def _visit_dense(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB, dims, bits, reach,
+                 boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off, J, pos, lim, V, dmin, buf):
     """`_visit_row` in MODE_MIN_DEFER on a dense lower-corner grid (`_defer_dense`): the
     same partners listed in the same order, by a row visit with none of the other
-    layouts' and modes' tests. The 64K cloth's folds against `_defer_rows`, one thread,
+    layouts' and modes' tests. It takes `_visit_row`'s arguments, so that either can be
+    a deferred kernel's visit (`_with_visit`); `mode` (MODE_MIN_DEFER), `bits`, `ent_key`
+    and `ent_clo` (a dense lower-corner grid has no hash bits, no keys and no covered
+    cells) go unused. The 64K cloth's folds against `_defer_rows`, one thread,
     the same compaction, same bits: edge-edge 25.9 -> 25.4 ms, vertex-face 9.6 -> 9.0 ms
     (issue 13). (Compiled twice, once for each value of `compact`, the edge-edge fold ran
     1.05x faster still, but the first query of a fresh install compiled for 44-50 s
@@ -1049,18 +1053,23 @@ def _min_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
             c = claim(counter)
 
 
-def _defer_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                   dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off, V,
-                   partial, n_chunks, counter, cap, flush):
+def _deferred_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
+                 dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off, V,
+                 partial, n_chunks, counter, cap, flush):
     # `_min_rows_py` in MODE_MIN for edge-edge or vertex-face pairs, with the distances
-    # deferred: each row lists its pairs that pass the box bound (MODE_MIN_DEFER, a
-    # constant here, so the row visit is compiled for it alone), and `_fold_deferred`
-    # evaluates the list once `flush` pairs are listed, with branch-free kernels over
-    # gathered coordinates: the same bits (min is exact; a pair the bound would have
-    # skipped against minima lowered since is evaluated, and lowers nothing). A row whose
-    # pairs do not fit in the room left of the list's `cap` is visited again, after the
-    # list is emptied, into the list or, with more than `cap` pairs, into a list of its
-    # own (`_listed_row`; `_DEFER_CAP`, `_DEFER_FLUSH`; the tests pass smaller ones).
+    # deferred: each row lists its pairs that pass the box bound (MODE_MIN_DEFER), and
+    # `_fold_deferred` evaluates the list once `flush` pairs are listed, with branch-free
+    # kernels over gathered coordinates: the same bits (min is exact; a pair the bound
+    # would have skipped against minima lowered since is evaluated, and lowers nothing). A
+    # row whose pairs do not fit in the room left of the list's `cap` is visited again,
+    # after the list is emptied, into the list or, with more than `cap` pairs, into a list
+    # of its own (`_listed_row`; `_DEFER_CAP`, `_DEFER_FLUSH`; the tests pass smaller ones).
+    # `_DEFERRED_VISIT` is not a global of this module: each of the two kernels compiled
+    # from this source binds it to its own row visit (`_with_visit`): `_defer_rows` to
+    # `_visit_row` (MODE_MIN_DEFER, a constant here, so the visit is compiled for it
+    # alone), any grid; `_defer_dense` to `_visit_dense`, a dense lower-corner grid only
+    # (`_Plan.min_sq_into` picks it). One kernel choosing its visit at run time compiled
+    # for 82 s instead of 44 on a fresh install.
     m = loA.shape[0]
     for w in prange(partial.shape[0]):
         buf, J, rows, starts, G, dist = _defer_buffers(cap)
@@ -1072,9 +1081,9 @@ def _defer_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
             end = (c + 1) * m // n_chunks
             while i < end:
                 Jr, at, lim = (np.empty(own, dtype=np.int64), 0, own) if own else (J, pos, cap)
-                n = _visit_row(MODE_MIN_DEFER, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                               dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
-                               Jr, at, lim, V, dmin, buf)
+                n = _DEFERRED_VISIT(MODE_MIN_DEFER, i, self_query, loA, hiA, TA, cloA, chiA, smallA,  # noqa: F821
+                                    loB, hiB, TB, dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo,
+                                    compact, bigB, gap_off, Jr, at, lim, V, dmin, buf)
                 pos, nr, own, done = _listed_row(i, n, own, Jr, pos, nr, J, rows, starts, G, dist, cap, flush, V, TA,
                                                  TB, dmin)
                 i += done
@@ -1083,31 +1092,14 @@ def _defer_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
             _fold_deferred(V, TA, TB, rows, starts, nr, pos, J, G, dist, dmin)
 
 
-def _defer_dense_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                    dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off, V,
-                    partial, n_chunks, counter, cap, flush):
-    # `_defer_rows_py` on a dense lower-corner grid (`_Plan.min_sq_into` picks it), the
-    # rows visited by `_visit_dense`. (One kernel with both visits compiled for 82 s
-    # instead of 44 on a fresh install: the shared list handling is `_listed_row`.)
-    m = loA.shape[0]
-    for w in prange(partial.shape[0]):
-        buf, J, rows, starts, G, dist = _defer_buffers(cap)
-        dmin = partial[w]
-        pos = nr = own = 0
-        c = claim(counter)
-        while c < n_chunks:
-            i = c * m // n_chunks
-            end = (c + 1) * m // n_chunks
-            while i < end:
-                Jr, at, lim = (np.empty(own, dtype=np.int64), 0, own) if own else (J, pos, cap)
-                n = _visit_dense(compact, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB, dims, reach,
-                                 boff, cmax, ent_id, ent_box, bigB, gap_off, Jr, at, lim, V, dmin, buf)
-                pos, nr, own, done = _listed_row(i, n, own, Jr, pos, nr, J, rows, starts, G, dist, cap, flush, V, TA,
-                                                 TB, dmin)
-                i += done
-            c = claim(counter)
-        if nr:
-            _fold_deferred(V, TA, TB, rows, starts, nr, pos, J, G, dist, dmin)
+def _with_visit(fn, name, visit):
+    """A copy of `fn` named `name` whose global ``_DEFERRED_VISIT`` is `visit`: Numba
+    freezes a kernel's globals when it compiles it, so each copy compiles with its own
+    row visit inlined and no test of which one it is."""
+    f = types.FunctionType(fn.__code__, dict(fn.__globals__, _DEFERRED_VISIT=visit), name, fn.__defaults__,
+                           fn.__closure__)
+    f.__qualname__ = name  # Numba's cache is keyed by it (`parallel.named`)
+    return f
 
 
 @njit(cache=True, inline="always")
@@ -1195,8 +1187,10 @@ def _deferred_vertices(edges, TA, i, TB, j):
 # query never waits for a descheduled thread (penfree.core.parallel).
 _fill_chunks = parallel_kernel(_fill_chunks_py, "_bp_fill_chunks", _PARALLEL_MIN_ROWS)
 _min_rows = parallel_kernel(_min_rows_py, "_bp_min_rows", _PARALLEL_MIN_ROWS)
-_defer_rows = parallel_kernel(_defer_rows_py, "_bp_defer_rows", _PARALLEL_MIN_ROWS)
-_defer_dense = parallel_kernel(_defer_dense_py, "_bp_defer_dense", _PARALLEL_MIN_ROWS)
+_defer_rows = parallel_kernel(_with_visit(_deferred_py, "_defer_rows_py", _visit_row), "_bp_defer_rows",
+                              _PARALLEL_MIN_ROWS)
+_defer_dense = parallel_kernel(_with_visit(_deferred_py, "_defer_dense_py", _visit_dense), "_bp_defer_dense",
+                               _PARALLEL_MIN_ROWS)
 
 
 @njit(cache=True, forceinline=True)

@@ -78,7 +78,7 @@ def _cap_sq(radius):
 def partial_chunks(n) -> int:
     """Rows of per-worker partial minima for `n` vertices, one per thread: the folds'
     workers claim their chunks of work as they go (`broad_phase._min_rows_py`,
-    `_defer_rows_py`), and min is exact, so the row count changes not a single bit; capped
+    `_deferred_py`), and min is exact, so the row count changes not a single bit; capped
     at `_PARTIAL_ENTRIES_MAX` entries."""
     return max(1, min(REDUCTION_CHUNKS, numba.get_num_threads(), _PARTIAL_ENTRIES_MAX // max(n, 1)))
 

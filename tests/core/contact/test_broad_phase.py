@@ -946,6 +946,18 @@ def _with_spanning(V, T, k, rng):
     return np.concatenate([V, W]), np.concatenate([T, new])
 
 
+def test_deferred_kernels_are_one_source_with_their_own_row_visits():
+    # `_defer_rows` and `_defer_dense` compile one source (`_deferred_py`), each build with
+    # its own row visit frozen in (`_with_visit`): the generic visit for any grid, the
+    # dense one where `_Plan.min_sq_into` picks it. Both give the same bits (the test
+    # below), so only this tells a swapped or shared visit from the right one.
+    for kernel, visit in ((bp._defer_rows, bp._visit_row), (bp._defer_dense, bp._visit_dense)):
+        for build in (kernel.serial, kernel.parallel):
+            assert build.py_func.__code__ is bp._deferred_py.__code__
+            assert build.py_func.__globals__["_DEFERRED_VISIT"] is visit
+    assert "_DEFERRED_VISIT" not in vars(bp)  # no module-wide default to fall back on
+
+
 @pytest.mark.parametrize("kind", ["rods", "folded-cloth"])
 @pytest.mark.parametrize("compact", [False, True])
 def test_dense_deferred_fold_gives_the_generic_folds_bits(rng, kind, compact):
