@@ -264,6 +264,7 @@ def test_worker_tasks_keep_freed_blocks_under_the_nannys_malloc_settings():
     assert before >= 128, f"precondition: the nanny's setting makes each block fault ({before} faults)"
     assert after <= 8, f"{after} faults per block after a task's set-up"
 
+
 def test_without_dask_one_line_and_exit_2(inputs, tmp_path, monkeypatch):
     _no_dask(monkeypatch)
     r = CliRunner().invoke(main, ["deform", str(inputs), "-o", str(tmp_path / "out")])

@@ -1729,6 +1729,13 @@ class _Plan:
         chi = np.empty(lo.shape, dtype=np.int64)
         return (clo, chi, *_cell_ranges(lo, hi, origin, h, clo, chi, max_reach))
 
+    @property
+    def dense_lower_corner(self) -> bool:
+        """A dense cell table whose boxes are entered in their lower corner's cell only (not
+        hashed, not covering): `_visit_row` scans its cells by runs along x, and the
+        deferred min folds take `_defer_dense` on it."""
+        return self.bits < 0 and self.ent_clo.shape[0] == 0
+
     def _args(self):
         return (self.self_query, self.loA, self.hiA, self.TA, self.cloA, self.chiA, self.smallA,
                 self.loB, self.hiB, self.TB, self.dims, self.bits, self.reach,
@@ -1789,9 +1796,8 @@ class _Plan:
             m = self.loA.shape[0]
             chunks = chunk_count(m, _MIN_CHUNKS, _MIN_CHUNK_ROWS)
             if mode == MODE_MIN and (self.TA.shape[1], self.TB.shape[1]) in _DEFERRED_WIDTHS:
-                dense = self.bits < 0 and self.ent_clo.shape[0] == 0  # a dense lower-corner grid
-                (_defer_dense if dense else _defer_rows)(m, *self._args(), V, partial, chunks, work_counter(),
-                                                         _DEFER_CAP, _DEFER_FLUSH)
+                (_defer_dense if self.dense_lower_corner else _defer_rows)(
+                    m, *self._args(), V, partial, chunks, work_counter(), _DEFER_CAP, _DEFER_FLUSH)
             else:
                 _min_rows(m, *self._args(), V, partial, mode, chunks, work_counter())
 
@@ -1980,7 +1986,7 @@ def scan_cost(plan) -> float:
     small = rows[plan.smallA[rows]]
     lo = np.maximum(plan.cloA[small] - plan.reach, 0)
     hi = np.minimum(plan.chiA[small], plan.dims - 1)
-    first = 1 if plan.bits < 0 and not plan.ent_clo.shape[0] else 0  # runs along x, as `_visit_row` scans
+    first = 1 if plan.dense_lower_corner else 0  # runs along x, as `_visit_row` scans
     cells = float(np.prod(hi[:, first:] - lo[:, first:] + 1, axis=1).sum())
     return (scanned + _CELL_VISIT_ENTRIES * cells) / rows.size
 
