@@ -839,3 +839,20 @@ def test_report_client_on_dask_equals_serial(tmp_path, scheduler):
     a, b = (json.loads((tmp_path / d / "report.json").read_text()) for d in ("dask", "serial"))
     assert a["files"][0]["client"] == b["files"][0]["client"] and b["files"][0]["client"]["steps"]["frame"]
     assert _without_fit_times(a) == _without_fit_times(b)
+
+
+def test_own_local_cluster_workers_skip_their_exit_collection_a_schedulers_not(scheduler):
+    """The workers of the cluster a command starts end with it, and it waits for them
+    (`memory.skip_exit_collection`); the workers of a cluster given by --scheduler are not
+    the command's to change."""
+    from penfree.scaleout.cluster import client
+
+    def skipped():
+        from penfree.core import memory
+
+        return memory._exit_collection_skipped
+
+    with client(workers=1) as c:
+        assert list(c.run(skipped).values()) == [True]
+    with client(scheduler=scheduler) as c:
+        assert list(c.run(skipped).values()) == [False, False]

@@ -54,7 +54,7 @@ class PenfreeGroup(click.Group):
         """Click's main with one-line option errors and SIGTERM handled like Ctrl-C."""
         from ..formats.atomic import reset_committed
 
-        from ..core.memory import retain_freed_memory
+        from ..core.memory import retain_freed_memory, skip_exit_collection
 
         reset_committed()
         retain_freed_memory()  # large scratch arrays reused, not re-faulted per call
@@ -74,7 +74,8 @@ class PenfreeGroup(click.Group):
             code = _interrupted(exc)
         finally:
             _restore_sigterm(previous)
-        if standalone_mode:
+        if standalone_mode:  # the process ends here
+            skip_exit_collection()
             sys.exit(code)
         return code
 

@@ -9,6 +9,7 @@ import os
 import uuid
 from contextlib import contextmanager
 
+from ..core.memory import skip_exit_collection
 from ..errors import InputError
 
 DASK_MISSING = ("several inputs, --workers and --scheduler need Dask, which is not installed; "
@@ -88,6 +89,8 @@ def client(workers=None, scheduler=None, in_process=False):
     # reports a failed task itself, in one line naming its file and frame range.
     with distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                                   silence_logs=logging.CRITICAL) as cluster, distributed.Client(cluster) as c:
+        # they end with this cluster, which the command waits for (not a scheduler's workers)
+        c.run(skip_exit_collection)
         yield c
 
 

@@ -123,3 +123,18 @@ def test_bad_input_exit_2(cli, tmp_path, case, command):
     assert "Traceback" not in r.output
     assert sorted(os.listdir(tmp_path)) == ["bad.h5"]  # no output, no temp file
     assert (open(bad, "rb").read(), os.stat(bad).st_mtime_ns) == before  # input untouched
+
+
+def test_only_the_ending_process_skips_its_exit_collection(tmp_path, monkeypatch):
+    from penfree.cli import main
+    from penfree.core import memory
+
+    p = tmp_path / "rods.h5"
+    write_sequence(p, _seq())
+    calls = []
+    monkeypatch.setattr(memory, "skip_exit_collection", lambda: calls.append(1))
+    with pytest.raises(SystemExit) as e:  # the console script: the process ends here
+        main.main(["info", str(p)])
+    assert e.value.code == 0 and calls == [1]
+    assert main.main(["info", str(p)], standalone_mode=False) == 0  # a caller's process: left alone
+    assert calls == [1]

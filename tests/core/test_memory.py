@@ -66,3 +66,39 @@ def test_populated_empty_falls_back_without_the_mapping(monkeypatch):
     monkeypatch.delattr(memory.mmap, "MAP_POPULATE", raising=False)
     a = memory.populated_empty((5 << 20,), np.float64)
     assert a.shape == (5 << 20,) and a.flags.writeable and a.flags.owndata
+
+
+#: A process that leaves an HDF5 file open, a `weakref.finalize` and an ``atexit`` handler
+#: (registered first, so it runs last) that records the collector's frozen object count.
+_EXIT_PROBE = """
+import atexit, gc, sys, weakref
+import h5py, numpy as np
+out = sys.argv[1]
+atexit.register(lambda: open(out + ".count", "w").write(str(gc.get_freeze_count())))
+class Held:
+    pass
+held = Held()
+weakref.finalize(held, lambda: open(out + ".finalized", "w").write("yes"))
+f = h5py.File(out + ".h5", "w")
+f["x"] = np.arange(5)
+if sys.argv[2] == "skip":
+    from penfree.core.memory import skip_exit_collection
+    skip_exit_collection()
+"""
+
+
+@pytest.mark.parametrize("mode", ["skip", "collect"])
+def test_exit_without_collection_still_runs_every_handler(tmp_path, mode):
+    import subprocess
+
+    import h5py
+
+    out = str(tmp_path / "probe")
+    r = subprocess.run([sys.executable, "-c", _EXIT_PROBE, out, mode], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    frozen = int(open(out + ".count").read())
+    # the freeze ran before the handlers registered earlier, and those still ran
+    assert (frozen > 1000) if mode == "skip" else frozen == 0
+    assert open(out + ".finalized").read() == "yes"
+    with h5py.File(out + ".h5", "r") as f:  # left open: closed and flushed at exit all the same
+        assert f["x"][()].tolist() == [0, 1, 2, 3, 4]
