@@ -841,18 +841,29 @@ def test_report_client_on_dask_equals_serial(tmp_path, scheduler):
     assert _without_fit_times(a) == _without_fit_times(b)
 
 
-def test_own_local_cluster_workers_skip_their_exit_collection_a_schedulers_not(scheduler):
+def test_own_local_cluster_workers_are_set_up_for_it_a_schedulers_not(scheduler):
     """The workers of the cluster a command starts end with it, and it waits for them
-    (`memory.skip_exit_collection`); the workers of a cluster given by --scheduler are not
-    the command's to change."""
+    (`memory.skip_exit_collection`); they run without Dask's profiler and frequent
+    monitors (`LOCAL_CLUSTER_CONFIG`). The workers of a cluster given by --scheduler are
+    not the command's to change."""
     from penfree.scaleout.cluster import client
 
-    def skipped():
+    import dask
+
+    from penfree.scaleout.cluster import LOCAL_CLUSTER_CONFIG
+
+    def state():
+        import dask
+
         from penfree.core import memory
 
-        return memory._exit_collection_skipped
+        return memory._exit_collection_skipped, {k: dask.config.get(k) for k in LOCAL_CLUSTER_CONFIG}
 
+    mine = (True, LOCAL_CLUSTER_CONFIG)
+    before = {k: dask.config.get(k) for k in LOCAL_CLUSTER_CONFIG}
+    assert before != LOCAL_CLUSTER_CONFIG  # Dask's defaults
     with client(workers=1) as c:
-        assert list(c.run(skipped).values()) == [True]
+        assert list(c.run(state).values()) == [mine]
+        assert {k: dask.config.get(k) for k in LOCAL_CLUSTER_CONFIG} == before  # the caller's, restored
     with client(scheduler=scheduler) as c:
-        assert list(c.run(skipped).values()) == [False, False]
+        assert list(c.run(state).values()) == [(False, before)] * 2
