@@ -867,3 +867,21 @@ def test_own_local_cluster_workers_are_set_up_for_it_a_schedulers_not(scheduler)
         assert {k: dask.config.get(k) for k in LOCAL_CLUSTER_CONFIG} == before  # the caller's, restored
     with client(scheduler=scheduler) as c:
         assert list(c.run(state).values()) == [(False, before)] * 2
+
+
+@pytest.mark.parametrize("threads, workers, scheduler, in_process, cores, expected", [
+    (3, 1, None, False, 4, 3),           # given: as given
+    (None, None, None, True, 4, None),   # in this process: its own
+    (None, 1, None, False, 4, 4),        # one local worker: every core
+    (None, 3, None, False, 4, 1),        # the cores shared, rounded down
+    (None, None, None, False, 4, 1),     # one worker per core (`client`'s default)
+    (None, 8, None, False, 2, 1),        # more workers than cores: never 0
+    (None, None, "tcp://h:8786", False, 64, 1),  # a scheduler's workers: their cores are unknown here
+])
+def test_task_threads_share_the_local_cores(monkeypatch, threads, workers, scheduler, in_process, cores, expected):
+    from penfree.scaleout import cluster
+
+    monkeypatch.setattr(cluster.os, "cpu_count", lambda: cores)
+    assert cluster.task_threads(threads, workers, scheduler, in_process) == expected
+    if expected is not None and scheduler is None:
+        assert expected * (workers or cores) <= max(cores, workers or cores)  # never more threads than cores

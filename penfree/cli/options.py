@@ -39,7 +39,8 @@ frames_option = click.option(
 )
 threads_option = click.option(
     "--threads", type=click.IntRange(min=1), default=None,
-    help="Numba threads (default: all cores). Results do not depend on it.",
+    help="Numba threads (default: all cores; on Dask, a local cluster's cores shared among its workers, "
+         "1 on a --scheduler's). Results do not depend on it.",
 )
 json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable JSON on stdout.")
 #: What penfree promises about your files; the README section of that name says the same.

@@ -167,6 +167,23 @@ def _one_line(exc) -> str:
     return " ".join(str(exc).split())
 
 
+def task_threads(threads, workers=None, scheduler=None, in_process=False):
+    """The Numba thread count of a task: `threads` when given; else, in this process
+    (`in_process`), None (the process keeps its own); on a local cluster of `workers`
+    processes the cores shared among them (`client` starts one per core when `workers` is
+    None: one thread each); on a `scheduler`'s workers one (their cores are not known here).
+
+    Results do not depend on it. ``--workers 1`` on 2 cores: 2 threads (it ran one, and
+    left a core idle).
+    """
+    if threads or in_process:
+        return threads
+    if scheduler is not None:
+        return 1
+    cores = os.cpu_count() or 1
+    return max(1, cores // (workers or cores))
+
+
 def task_setup(threads):
     """A task's set-up on its worker: Numba's thread count (`threads`, when given) and
     freed blocks kept in the heap (`retain_freed_memory`, as the CLI's process does).

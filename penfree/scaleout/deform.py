@@ -12,7 +12,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..formats.partials import is_per_vertex, merge_partials, write_partial
-from .cluster import client, gather, n_workers_of, new_key, task_setup
+from .cluster import client, gather, n_workers_of, new_key, task_setup, task_threads
 from .plan import deform_outputs, expand_inputs, plan
 
 # --- deform ------------------------------------------------------------------------
@@ -184,11 +184,10 @@ def deform_many(specs, output, *, options, overwrite=False, with_stats=False, wo
     try:
         stage = _own_folder(outdir)
         try:
-            # a worker process runs one thread unless told; a run in this process keeps its own
             results, index, final = _run(c_args=(workers, scheduler, in_process), stage=stage, inputs=inputs,
                                          outs=outs, options=options, with_stats=with_stats,
-                                         threads=threads if in_process else threads or 1, progress=progress,
-                                         on_total=on_total)
+                                         threads=task_threads(threads, workers, scheduler, in_process),
+                                         progress=progress, on_total=on_total)
             _commit([os.path.join(stage, os.path.basename(o)) for o in outs], outs, overwrite)
         finally:  # the run's own folder (on a local cluster its workers are gone by now)
             shutil.rmtree(stage, ignore_errors=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from .cluster import client, n_workers_of, run_tasks, task_setup
+from .cluster import client, n_workers_of, run_tasks, task_setup, task_threads
 from .plan import expand_inputs, plan
 
 # --- verify and report ---------------------------------------------------------------
@@ -42,8 +42,8 @@ def verify_many(specs, *, thickness=None, frames=None, mode="auto", max_pairs=10
         options = {"thickness": thickness, "frames": frames, "mode": mode, "max_pairs": max_pairs, "strict": strict}
         if in_process:
             options["progress"] = step_progress
-        # a worker process runs one thread unless told; a run in this process keeps its own
-        reports = run_tasks(c, verify_task, tasks, (options, threads if in_process else threads or 1), progress)
+        reports = run_tasks(c, verify_task, tasks, (options, task_threads(threads, workers, scheduler, in_process)),
+                            progress)
     merged = []
     for p in inputs:
         mine = [r for t, r in zip(tasks, reports) if t.path == p]
@@ -106,8 +106,8 @@ def report_many(specs, *, options, workers=None, scheduler=None, threads=None, p
         if on_total is not None:
             on_total(len(tasks))
         opts = dict(options, decisions=decisions, progress=step_progress if in_process else None)
-        # a worker process runs one thread unless told; a run in this process keeps its own
-        results = run_tasks(c, report_task, tasks, (opts, threads if in_process else threads or 1), progress)
+        results = run_tasks(c, report_task, tasks, (opts, task_threads(threads, workers, scheduler, in_process)),
+                            progress)
     entries = []
     for p in inputs:
         mine = [r for t, r in zip(tasks, results) if t.path == p]
