@@ -846,11 +846,9 @@ def test_own_local_cluster_workers_are_set_up_for_it_a_schedulers_not(scheduler)
     (`memory.skip_exit_collection`); they run without Dask's profiler and frequent
     monitors (`LOCAL_CLUSTER_CONFIG`). The workers of a cluster given by --scheduler are
     not the command's to change."""
-    from penfree.scaleout.cluster import client
-
     import dask
 
-    from penfree.scaleout.cluster import LOCAL_CLUSTER_CONFIG
+    from penfree.scaleout.cluster import LOCAL_CLUSTER_CONFIG, client
 
     def state():
         import dask

@@ -60,11 +60,11 @@ def skip_exit_collection():
     ``weakref.finalize`` still runs (HDF5 still closes its files); only cycles of objects
     unreachable at exit stay unfreed, their ``__del__`` not run (penfree relies on none:
     its temporary files are removed by `penfree.formats.atomic` as the command ends, and
-    the operating system frees the memory). After a command
-    that loaded the kernels, the interpreter's shutdown took 0.19-0.23 s and takes 0.02 s
-    (64K-vertex runs, AMD Zen 4 under KVM). For the CLI's process (which ends after its
-    command) and for the workers of a local cluster of its own (`penfree.scaleout`), whose
-    shutdown the command waits for; a library user's process is left alone.
+    the operating system frees the memory). After a command that loaded the kernels, the
+    interpreter's shutdown took 0.19-0.23 s and takes 0.02 s (64K-vertex runs, AMD Zen 4
+    under KVM). For the CLI's process (which ends after its command) and for the workers
+    of a local cluster of its own (`penfree.scaleout`), whose shutdown the command waits
+    for; a library user's process is left alone.
     """
     global _exit_collection_skipped
     atexit.unregister(gc.freeze)

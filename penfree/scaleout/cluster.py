@@ -98,7 +98,7 @@ def client(workers=None, scheduler=None, in_process=False):
         finally:
             c.close()
         return
-    n = workers or os.cpu_count() or 1
+    n = local_workers(workers)
     # One thread per worker process: workers run Numba kernels themselves. Their logs are
     # silenced below CRITICAL, ERROR too ("Compute Failed" and a traceback): `gather`
     # reports a failed task itself, in one line naming its file and frame range. The
@@ -113,6 +113,11 @@ def client(workers=None, scheduler=None, in_process=False):
         # they end with this cluster, which the command waits for (not a scheduler's workers)
         c.run(skip_exit_collection)
         yield c
+
+
+def local_workers(workers) -> int:
+    """The processes of the local cluster `client` starts: `workers`, else one per core."""
+    return workers or os.cpu_count() or 1
 
 
 def n_workers_of(c) -> int:
@@ -169,9 +174,9 @@ def _one_line(exc) -> str:
 
 def task_threads(threads, workers=None, scheduler=None, in_process=False):
     """The Numba thread count of a task: `threads` when given; else, in this process
-    (`in_process`), None (the process keeps its own); on a local cluster of `workers`
-    processes the cores shared among them (`client` starts one per core when `workers` is
-    None: one thread each); on a `scheduler`'s workers one (their cores are not known here).
+    (`in_process`), None (the process keeps its own); on a local cluster the cores shared
+    among its processes (`local_workers`: one per core when `workers` is None, so one
+    thread each); on a `scheduler`'s workers one (their cores are not known here).
 
     Results do not depend on it. ``--workers 1`` on 2 cores: 2 threads (it ran one, and
     left a core idle).
@@ -180,8 +185,7 @@ def task_threads(threads, workers=None, scheduler=None, in_process=False):
         return threads
     if scheduler is not None:
         return 1
-    cores = os.cpu_count() or 1
-    return max(1, cores // (workers or cores))
+    return max(1, (os.cpu_count() or 1) // local_workers(workers))
 
 
 def task_setup(threads):
