@@ -232,6 +232,7 @@ def test_failed_task_names_file_and_frames(tmp_path, scheduler):
 
 _FAULTS_PER_BLOCK = """
 import resource, numpy as np
+import numba  # loaded by a worker before its first task; it changes how numpy's blocks come back
 from penfree.scaleout.cluster import task_setup
 def faults():  # minor page faults per 8 MiB block allocated, filled and freed
     f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
@@ -865,6 +866,105 @@ def test_own_local_cluster_workers_are_set_up_for_it_a_schedulers_not(scheduler)
         assert {k: dask.config.get(k) for k in LOCAL_CLUSTER_CONFIG} == before  # the caller's, restored
     with client(scheduler=scheduler) as c:
         assert list(c.run(state).values()) == [(False, before)] * 2
+
+
+_SERVER_PROBE = """
+import gc, os
+import numba
+import penfree.scaleout.preload as preload
+try:
+    numba.threading_layer()
+    launched = True
+except ValueError:  # not started in this process
+    launched = False
+print(len(os.listdir("/proc/self/task")), launched, gc.get_freeze_count() > 0, preload.prepare_numba())
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="workers are forked on Linux only")
+def test_worker_server_preload_starts_no_thread():
+    """The process a local cluster's workers are forked from must hold one thread when it
+    forks: a thread's locks would be held for ever in the child, and GNU OpenMP, once
+    Numba's threading layer has started it, ends a forked child at its first parallel
+    region. Its preload imports NumPy under `SERVER_ENVIRON` (one OpenBLAS thread)."""
+    from penfree.scaleout.cluster import SERVER_ENVIRON
+
+    def probe(env):
+        out = subprocess.run([sys.executable, "-c", _SERVER_PROBE], env=env, capture_output=True, text=True,
+                             check=True).stdout.split()
+        return int(out[0]), out[1:]
+
+    threads, flags = probe({**os.environ, **SERVER_ENVIRON})
+    assert threads == 1 and flags == ["False", "True", "True"]  # no thread, no threading layer; frozen; Numba ready
+    if os.cpu_count() > 1:  # the control: without it, NumPy's OpenBLAS starts its threads at import
+        env = {k: v for k, v in os.environ.items() if k not in SERVER_ENVIRON}
+        assert probe(env)[0] > 1
+
+
+def _worker_state():
+    import gc
+    import os
+    import sys
+
+    return (os.getppid(), "penfree.core.pipeline.deform" in sys.modules, gc.get_freeze_count() > 0,
+            os.environ.get("OPENBLAS_NUM_THREADS"))
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="workers are forked on Linux only")
+def test_local_cluster_workers_are_forked_from_the_prepared_server(inputs, tmp_path):
+    """Before any task, each worker of a local cluster has penfree's task modules imported
+    and their objects frozen (`preload`); its parent is the fork server, not this process,
+    and the next cluster reuses that server. Tasks whose parallel kernels run on two
+    threads there give the serial run's results (the threading layer starts in the worker)."""
+    from penfree.scaleout.cluster import client
+
+    with client(workers=2) as c:
+        first = list(c.run(_worker_state).values())
+    with client(workers=1) as c:
+        second = list(c.run(_worker_state).values())
+    parents = {s[0] for s in first + second}
+    assert len(parents) == 1 and os.getpid() not in parents
+    assert all(s[1:] == (True, True, "1") for s in first + second), first + second
+    r = CliRunner().invoke(main, ["deform", str(inputs), "-o", str(tmp_path / "dask"), "--workers", "2",
+                                  "--threads", "2", "--model", "auto"])
+    assert r.exit_code == 0, r.output
+    for name in ("rods.h5", "twisting_cloth.h5"):
+        serial = tmp_path / f"serial-{name}"
+        r = CliRunner().invoke(main, ["deform", str(inputs / name), "-o", str(serial), "--model", "auto"])
+        assert r.exit_code == 0, r.output
+        assert_same_result(tmp_path / "dask" / name, serial)
+
+
+def test_local_cluster_workers_are_spawned_without_the_server(monkeypatch):
+    """Where workers are not forked (`FORK_WORKERS`: other systems), they are spawned by
+    this process's nannies and prepare themselves, as Dask does by default."""
+    from penfree.scaleout import cluster
+
+    monkeypatch.setattr(cluster, "FORK_WORKERS", False)
+    assert not cluster.start_worker_server()
+    with cluster.client(workers=1) as c:
+        [state] = c.run(_worker_state).values()
+    assert state[:2] == (os.getpid(), False)
+
+
+def test_importing_scaleout_loads_neither_dask_nor_numba():
+    """The CLI starts the worker server as soon as it knows a command takes this path
+    (`cli.scaleout.start_workers`): the decision and the start must not wait for
+    Numba's or Dask's import (0.2-0.4 s), which the server does in the meantime."""
+    probe = ("import sys, penfree.cli, penfree.scaleout, penfree.scaleout.cluster; "
+             "print(sorted(m for m in ('numba', 'distributed', 'dask', 'h5py') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
+def test_worker_server_leaves_this_process_environment(monkeypatch):
+    from penfree.scaleout.cluster import SERVER_ENVIRON, start_worker_server
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "7")
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    start_worker_server()
+    assert os.environ["OMP_NUM_THREADS"] == "7" and "OPENBLAS_NUM_THREADS" not in os.environ
+    assert set(SERVER_ENVIRON) >= {"OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"}
 
 
 @pytest.mark.parametrize("threads, workers, scheduler, in_process, cores, expected", [

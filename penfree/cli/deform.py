@@ -65,9 +65,6 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
     Each step s moves frame s toward the prediction 2 x^s - x^(s-1); the straight path
     to the deformed state is certified penetration-free (exact test) before it is written.
     """
-    from ..core.pipeline.deform import deform_sequence, deform_stats, result_attrs, step_indices
-    from ..formats import check_outputs, input_files, read_sequence
-    from ..formats.result import write_result
     from ..scaleout import is_long, is_scaleout
 
     if dhat is not None and not client_model:
@@ -84,8 +81,13 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
                              "inputs, --workers or --scheduler")
         from . import scaleout
 
+        scaleout.start_workers(scheduler)
         return scaleout.deform(input_paths, output_path, opts, overwrite=overwrite, with_stats=with_stats,
                                workers=workers, scheduler=scheduler, threads=threads, as_json=as_json)
+    from ..core.pipeline.deform import deform_sequence, deform_stats, result_attrs, step_indices
+    from ..formats import check_outputs, input_files, read_sequence
+    from ..formats.result import write_result
+
     input_path = input_paths[0]
     if os.path.isdir(output_path):
         raise InputError(f"-o {output_path} is a directory; give a result file name (a directory only with "

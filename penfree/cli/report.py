@@ -92,6 +92,10 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
     # Several plain files run here as before; directories and globs expand; Dask on request.
     files = expand_inputs(files, missing_ok=True)
     scale = workers is not None or scheduler is not None
+    if scale:
+        from . import scaleout
+
+        scaleout.start_workers(scheduler)
     check_report_dir(outdir, overwrite, inputs=list(files) + ([baseline_path] if baseline_path else []))
     frame_slice = parse_frames(frames)
     set_threads(threads)
@@ -118,8 +122,6 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
     opts = dict(frames=frame_slice, cd_share=cd_share, frame_ms=frame_ms, replay=replay, ladder=not no_ladder,
                 use_stored_stats=not ci, verify_paths=fail_if_uncertified, client=client_opts)
     if scale:  # several inputs / Dask: a task per file or frame range (penfree.scaleout)
-        from . import scaleout
-
         files, reports = scaleout.report_entries(files, opts, workers=workers, scheduler=scheduler, threads=threads)
     for path, res, lg in zip(files, results if not scale else (), long):
         work = res.n_steps * ((ci or stored_stats(res, replay) is None) + (not no_ladder)) + (

@@ -24,6 +24,16 @@ class _Bar:
             self.bar.close()
 
 
+def start_workers(scheduler):
+    """Without a `scheduler`, start now the process the local cluster's workers will be
+    forked from (`penfree.scaleout.cluster.start_worker_server`): it prepares itself
+    while the command goes on reading and checking its inputs."""
+    if scheduler is None:
+        from ..scaleout.cluster import start_worker_server
+
+        start_worker_server()
+
+
 def deform(specs, output, options, *, overwrite, with_stats, workers, scheduler, threads, as_json):
     from ..core.pipeline.deform import summarize_steps
     from ..scaleout import deform_many

@@ -77,8 +77,6 @@ def command(paths, thickness, frames, threads, as_json, max_pairs, mode, strict,
     failure with --strict). A raw sequence is checked from frame s to s+1, its start
     states included. Exit 0: all steps safe; 1: a violation; 2: unusable input.
     """
-    from ..core.pipeline.verification import n_steps, verify_file
-    from ..formats.result import is_result_file
     from ..scaleout import is_long, is_scaleout, verify_many
 
     frame_slice = parse_frames(frames)
@@ -88,11 +86,15 @@ def command(paths, thickness, frames, threads, as_json, max_pairs, mode, strict,
         if usd_prims or usd_obstacles:
             raise InputError("--prim and --obstacle are not supported with several inputs or --workers/"
                              "--scheduler; verify the USD stage on its own")
+        scaleout.start_workers(scheduler)
         if not scaleout.verify(paths, thickness=thickness, frames=frame_slice, mode=mode, max_pairs=max_pairs,
                                workers=workers, scheduler=scheduler, threads=threads, as_json=as_json,
                                step_line=_step_line, strict=strict):
             click.get_current_context().exit(1)
         return
+    from ..core.pipeline.verification import n_steps, verify_file
+    from ..formats.result import is_result_file
+
     path = paths[0]
     set_threads(threads)
     total = n_steps(path, frame_slice)

@@ -4,12 +4,13 @@ collects task results in order, counts progress and names a failed task."""
 
 from __future__ import annotations
 
+import importlib.util
 import logging
 import os
+import sys
 import uuid
 from contextlib import contextmanager
 
-from ..core.memory import skip_exit_collection
 from ..errors import InputError
 
 DASK_MISSING = ("several inputs, --workers and --scheduler need Dask, which is not installed; "
@@ -38,6 +39,58 @@ LOCAL_CLUSTER_CONFIG = {
     "distributed.admin.tick.interval": "1s",
     "distributed.admin.system-monitor.interval": "5s",
 }
+
+
+#: Whether a local cluster's workers are forked from a prepared process (`start_worker_server`)
+#: rather than spawned: on Linux. Elsewhere they are spawned (macOS's system libraries are
+#: not safe to fork; Windows cannot).
+FORK_WORKERS = sys.platform.startswith("linux")
+
+#: The module that process imports before it forks the first worker (`penfree.scaleout.preload`).
+WORKER_PRELOAD = "penfree.scaleout.preload"
+
+#: The fork server's environment, over this process's: one thread for OpenMP, MKL and
+#: OpenBLAS (the values Dask's ``distributed.nanny.pre-spawn-environ`` gives a spawned
+#: worker), so that importing NumPy there starts no thread (`preload`).
+SERVER_ENVIRON = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+
+
+def start_worker_server() -> bool:
+    """Start the process a local cluster's workers will be forked from, unless it runs;
+    True when workers are forked (`FORK_WORKERS`, Dask installed), False when spawned.
+
+    A spawned worker is a new interpreter that imports Dask, penfree and Numba and fills
+    Numba's CPU target itself before its first task: 0.5-0.8 s on every run, in each
+    worker. Python's fork server (`multiprocessing.forkserver`) does that once
+    (`WORKER_PRELOAD`), then forks each worker in a few milliseconds, and lives as long as
+    this process: later clusters of this process reuse it. This returns at once and the
+    server prepares itself in the background, so the CLI calls it as soon as it knows a
+    command starts a local cluster: the server imports while the command reads and checks
+    its inputs (`client` calls it too).
+
+    The server runs with this process's environment as it is now, and `SERVER_ENVIRON`
+    over it; its workers inherit that (a variable set later reaches them only through
+    Dask's ``distributed.nanny.environ``). This process's environment is left as it was.
+    The server never starts a thread (`preload`), so forking it is safe.
+    """
+    if not FORK_WORKERS or importlib.util.find_spec("distributed") is None:  # no Dask: `require_dask` says so
+        return False
+    import multiprocessing.forkserver
+
+    saved = {k: os.environ.get(k) for k in SERVER_ENVIRON}
+    multiprocessing.forkserver.set_forkserver_preload([WORKER_PRELOAD])
+    os.environ.update(SERVER_ENVIRON)
+    try:
+        multiprocessing.forkserver.ensure_running()
+    except OSError:  # no Unix socket or no process to be had: workers are spawned, as elsewhere
+        return False
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                del os.environ[k]
+            else:
+                os.environ[k] = v
+    return True
 
 
 class Deferred:
@@ -104,11 +157,17 @@ def client(workers=None, scheduler=None, in_process=False):
     # reports a failed task itself, in one line naming its file and frame range. The
     # cluster starts here: its scheduler and nannies take `LOCAL_CLUSTER_CONFIG`, and the
     # nannies pass it on to their workers; the caller's configuration is restored at once.
+    # Its workers are forked from the prepared server (`start_worker_server`) where there is one.
     import dask
 
-    with dask.config.set(LOCAL_CLUSTER_CONFIG):
+    config = dict(LOCAL_CLUSTER_CONFIG)
+    if start_worker_server():
+        config["distributed.worker.multiprocessing-method"] = "forkserver"
+    with dask.config.set(config):
         cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                                            silence_logs=logging.CRITICAL)
+    from ..core.memory import skip_exit_collection
+
     with cluster, distributed.Client(cluster) as c:
         # they end with this cluster, which the command waits for (not a scheduler's workers)
         c.run(skip_exit_collection)

@@ -11,7 +11,6 @@ import tempfile
 import numpy as np
 
 from ..errors import InputError
-from ..formats.partials import is_per_vertex, merge_partials, write_partial
 from .cluster import client, gather, n_workers_of, new_key, task_setup, task_threads
 from .plan import deform_outputs, expand_inputs, plan
 
@@ -48,6 +47,8 @@ def _deform(task, options, with_stats, threads):
 def deform_task(task, parts, options, with_stats, threads):
     """Worker: deform the steps of `task`, write the partial result into the folder `parts`
     (the run's own), return its path."""
+    from ..formats.partials import write_partial
+
     _, steps, groups = _deform(task, options, with_stats, threads)
     return write_partial(parts, steps, groups)
 
@@ -79,6 +80,7 @@ def merge_task(path, out_path, parts, options):
     from ..formats import read_sequence
     from ..formats.frames import StoredFrames
     from ..formats.hdf5 import read_whole_shape
+    from ..formats.partials import merge_partials
 
     task_setup(None)
     steps, groups = merge_partials(sorted(parts), stream=True)
@@ -103,6 +105,8 @@ def _light(steps) -> dict:
     """The per-step arrays the driver's summary reads: not ``deformed`` nor the per-vertex
     rows (``--per-vertex``: ``(S, N)`` each, streamed by a merge from files it then removes;
     a few hundred 64K recordings' would fill the driver's memory)."""
+    from ..formats.partials import is_per_vertex
+
     return {k: v for k, v in steps.items() if k != "deformed" and not is_per_vertex(k)}
 
 
