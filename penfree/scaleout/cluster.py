@@ -71,7 +71,9 @@ def start_worker_server() -> bool:
     The server runs with this process's environment as it is now, and `SERVER_ENVIRON`
     over it; its workers inherit that (a variable set later reaches them only through
     Dask's ``distributed.nanny.environ``). This process's environment is left as it was.
-    The server never starts a thread (`preload`), so forking it is safe.
+    The server never starts a thread (`preload`), so forking it is safe. (A fork server
+    this process already runs, started by other code with its own preload, is used as it
+    is: its workers then prepare themselves, as spawned ones do.)
     """
     if not FORK_WORKERS or importlib.util.find_spec("distributed") is None:  # no Dask: `require_dask` says so
         return False
