@@ -13,9 +13,9 @@ Dask is imported before anything is timed (the first run would pay it alone), an
 medians. On Linux the workers are forked from a prepared server
 (`penfree.scaleout.cluster.start_worker_server`) that the first run starts and the later
 runs of this process reuse, as in any process that runs several of them (a notebook): its
-start-up (about 1 s) is in the first run only. ``--cli`` times the command instead, one process per run (``penfree
-deform DIR -o OUT --workers N --threads 1``, wall time): each run starts its own server,
-while the command reads and checks its inputs.
+start-up (about 1 s) is in the first run only. ``--cli`` times the command instead, one
+process per run (``penfree deform DIR -o OUT --workers N --threads 1``, wall time): each run
+starts its own server, while the command reads and checks its inputs.
 
     .venv/bin/python benchmarks/bench_scaleout.py [--files 4] [--frames 50] [--repeats 2] [--scene yarn-bundle] [--cli]
 """
