@@ -161,6 +161,58 @@ def claim(typingctx, counter):
     return sig, codegen
 
 
+@intrinsic
+def claim_at(typingctx, counter, k):
+    """``counter[k]`` before adding 1 to it, atomically: `claim` on slot k (the cursor of
+    one worker's range of chunks, `range_counter`)."""
+    if not (isinstance(counter, nbtypes.Array) and counter.ndim == 1 and counter.dtype == nbtypes.int64
+            and isinstance(k, nbtypes.Integer)):
+        return None
+    sig = nbtypes.int64(counter, k)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        idx = context.cast(builder, args[1], signature.args[1], nbtypes.intp)
+        ptr = cgutils.get_item_pointer(context, builder, signature.args[0], ary, [idx])
+        return builder.atomic_rmw("add", ptr, context.get_constant(nbtypes.int64, 1), ordering="monotonic")
+
+    return sig, codegen
+
+
+@njit(cache=True, inline="always")
+def claim_next(counter, w, k):
+    """Worker w's next chunk from a `range_counter`, and its new `k` (start at 0): its
+    own range first, then the others' in turn, w + 1 first; -1 once every range is
+    drained. ``c, k = claim_next(counter, w, k)`` until ``c < 0``."""
+    T = counter[-1]
+    while k < T:
+        v = (w + k) % T
+        c = claim_at(counter, v)
+        if c < counter[T + v]:
+            return c, k
+        k += 1
+    return np.int64(-1), k
+
+
+def range_counter(n_chunks: int, workers: int | None = None):
+    """A fresh counter for claims by ranges (`claim_next`; one per kernel call), for T
+    workers (`workers`, else the calling thread's Numba thread count; a kernel's
+    ``prange`` over ``counter[-1]``): ``[cursor_0 .. cursor_T-1, end_0 .. end_T-1, T]``,
+    worker w's range being chunks ``[w C / T, (w + 1) C / T)``.
+
+    Worker w claims its own range first, then the others' in turn, w + 1 first: each
+    thread works through contiguous chunks, as a static split would (the rows of nearby
+    chunks share grid buckets and boxes, which stay in that core's cache: chunks claimed
+    one after another by both threads, as `claim` hands them out, measured 3-10% slower
+    on the 64K cloth's start pass than a static split), and a late thread's chunks are
+    taken by the others instead of holding up the region (that pass 1.13-1.17x faster
+    than the static split with another process holding a core).
+    """
+    t = thread_count() if workers is None else workers
+    bounds = (np.arange(t + 1, dtype=np.int64) * n_chunks) // t
+    return np.concatenate([bounds[:-1], bounds[1:], [t]]).astype(np.int64)
+
+
 def chunk_count(work: int, most: int, least_each: int) -> int:
     """How many chunks to cut `work` items into: at most `most`, each of at least
     `least_each` items where there is that much work, and at least one."""

@@ -72,6 +72,57 @@ def test_claim_hands_out_every_chunk_once():
             numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
 
 
+def _range_claims_py(counter, taken, seq):
+    # seq[w] lists the chunks worker w claimed, in its order (-1 after the last).
+    for w in prange(counter[-1]):
+        n = 0
+        c, k = parallel.claim_next(counter, w, 0)
+        while c >= 0:
+            taken[c] += 1
+            seq[w, n] = c
+            n += 1
+            c, k = parallel.claim_next(counter, w, k)
+
+
+_range_claims = parallel_kernel(_range_claims_py, "_test_range_claims", min_work=0)
+
+
+def test_range_counter_splits_the_chunks_into_one_range_per_worker():
+    np.testing.assert_array_equal(parallel.range_counter(10, workers=3), [0, 3, 6, 3, 6, 10, 3])
+    np.testing.assert_array_equal(parallel.range_counter(2, workers=3), [0, 0, 1, 0, 1, 2, 3])
+    np.testing.assert_array_equal(parallel.range_counter(0, workers=2), [0, 0, 0, 0, 2])
+    assert parallel.range_counter(5)[-1] == parallel.thread_count()
+
+
+def test_claims_by_ranges_hand_out_every_chunk_once_own_range_first():
+    # Every chunk is taken exactly once, on one thread and on two, by either build, for
+    # more or fewer workers than chunks. Each worker takes its own range first, then the
+    # next ranges in turn, each range's chunks in order (a thread works through
+    # contiguous rows); on one thread, worker 0 takes every chunk in order.
+    for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+        numba.set_num_threads(threads)
+        try:
+            for kernel in (_range_claims.serial, _range_claims.parallel):
+                for n_chunks, n_workers in ((0, 2), (1, 2), (2, 3), (1000, 2), (1000, 7), (5, 1), (3, 7)):
+                    counter = parallel.range_counter(n_chunks, workers=n_workers)
+                    ends = counter[n_workers:2 * n_workers].copy()
+                    taken = np.zeros(n_chunks, dtype=np.int64)
+                    seq = np.full((n_workers, n_chunks), -1, dtype=np.int64)
+                    kernel(counter, taken, seq)
+                    assert np.all(taken == 1)
+                    for w in range(n_workers):
+                        got = seq[w][seq[w] >= 0]
+                        owner = np.searchsorted(ends, got, side="right")  # the range of each chunk
+                        turn = (owner - w) % n_workers  # 0: its own range, 1: the next one, ...
+                        assert np.all(np.diff(turn) >= 0)
+                        for r in np.unique(owner):
+                            assert np.all(np.diff(got[owner == r]) > 0)
+                    if kernel is _range_claims.serial or threads == 1:
+                        np.testing.assert_array_equal(seq[0][:n_chunks], np.arange(n_chunks))
+        finally:
+            numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+
+
 def test_named_copies_get_their_own_cache_names():
     f = parallel.named(_square_py, "_x_named")
     assert f.__qualname__ == "_x_named" and f.__code__ is _square_py.__code__

@@ -137,7 +137,7 @@ from numba import njit, prange
 from ...errors import InputError
 from .distance import _ee, _ee_gap, _pe, _pt, _pt_gap, ee_sq_columns, pt_sq_columns
 from .orient import segment_may_meet_triangle_at
-from ..parallel import chunk_count, claim, parallel_kernel, use_parallel, work_counter
+from ..parallel import chunk_count, claim, claim_next, parallel_kernel, range_counter, use_parallel, work_counter
 from ..topology import as_positions, as_topology, sort_segment
 
 #: A grid box spanning more than this many cells beyond its first along an axis is
@@ -1003,32 +1003,36 @@ def _close_row(J, pos, n, lim, over):
 
 def _fill_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
                     dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
-                    starts, todo, bstart, blim, counts, J, full, mode, V):
+                    starts, todo, bstart, blim, counts, J, full, mode, V, counter):
     """One pass over the rows of the chunks marked in `todo`, filling and counting.
 
     Chunk c owns rows [starts[c], starts[c + 1]) and the slots [bstart[c], blim[c])
     of J, where it writes each row's partners (sorted) one row after another and
     each row's count into `counts`. When its slots run out it only counts from
     there on and sets full[c]: the caller refills it at exact offsets. A chunk
-    writes only its own slots, so the bits do not depend on the threads. `mode` is
-    MODE_FILL, or MODE_FILL_EF (edge-face pairs through the filter, positions `V`).
+    writes only its own slots, so the bits depend neither on the threads nor on which
+    worker takes which chunk: the workers claim them by ranges (`parallel.claim_next` on
+    `counter`, a `range_counter`), so a late thread's chunks are taken by the others.
+    `mode` is MODE_FILL, or MODE_FILL_EF (edge-face pairs through the filter, positions `V`).
     """
     dmin = np.empty(0)
-    for c in prange(starts.shape[0] - 1):
-        if not todo[c]:
-            continue
-        pos = bstart[c]
-        lim = blim[c]
-        over = False
+    for w in prange(counter[-1]):
         buf = np.empty(_SCAN_BLOCK, dtype=np.int64)
-        for i in range(starts[c], starts[c + 1]):
-            # once full, the same mode only counts (no slot below a limit of -1)
-            n = _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                           dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
-                           J, pos, -1 if over else lim, V, dmin, buf)
-            counts[i] = n
-            pos, over = _close_row(J, pos, n, lim, over)
-        full[c] = over
+        c, k = claim_next(counter, w, 0)
+        while c >= 0:
+            if todo[c]:  # (not a `continue`: with one, LLVM made the rows 1.16x slower)
+                pos = bstart[c]
+                lim = blim[c]
+                over = False
+                for i in range(starts[c], starts[c + 1]):
+                    # once full, the same mode only counts (no slot below a limit of -1)
+                    n = _visit_row(mode, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB, dims, bits,
+                                   reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
+                                   J, pos, -1 if over else lim, V, dmin, buf)
+                    counts[i] = n
+                    pos, over = _close_row(J, pos, n, lim, over)
+                full[c] = over
+            c, k = claim_next(counter, w, k)
 
 
 def _min_rows_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
@@ -1242,45 +1246,48 @@ def _fold_owned(V, E, i, F, j, face_edges, owner_face, owner_edge, loE, hiE, loF
 def _start_chunks_py(self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
                      dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
                      starts, todo, bstart, blim, counts, J, full, V,
-                     face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, inflation, slack, partial):
+                     face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, inflation, slack, partial, counter):
     """`_fill_chunks` of MODE_FILL_EF for the rows A = edges, B = faces, fused with the
     edge-edge and vertex-face folds (`_Plan.start_pairs`): each row lists all its box
     hits (adjacent faces too) in a scratch, folds the pairs each hit owns into its
     chunk's ``partial[c, 0]`` (`_fold_owned`) and keeps the non-adjacent hits that the
     float filter cannot clear, as MODE_FILL_EF does. A refilled chunk folds again: min
-    is exact, so the minimum does not change, and no chunk writes another's slots."""
+    is exact, so the minimum does not change, and no chunk writes another's slots. The
+    workers claim the chunks by ranges, as `_fill_chunks`' do."""
     none = np.empty(0)
-    for c in prange(starts.shape[0] - 1):
-        if not todo[c]:
-            continue
-        pos = bstart[c]
-        lim = blim[c]
-        over = False
+    for w in prange(counter[-1]):
         buf = np.empty(_SCAN_BLOCK, dtype=np.int64)
         hits = np.empty(_ROW_HITS, dtype=np.int64)
-        dmin = partial[c]
-        for i in range(starts[c], starts[c + 1]):
-            n = np.int64(0)
-            for _ in range(2):  # a row with more hits than the scratch: visit it again (one call site)
-                n = _visit_row(MODE_FILL_ALL, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB, TB,
-                               dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact, bigB, gap_off,
-                               hits, 0, hits.shape[0], V, none, buf)
-                if n <= hits.shape[0]:
-                    break
-                hits = np.empty(2 * n, dtype=np.int64)
-            kept = 0
-            for q in range(n):
-                j = hits[q]
-                _fold_owned(V, TA, i, TB, j, face_edges, owner_face, owner_edge, loE, hiE, loF, hiF, inflation, slack,
-                            dmin)
-                if not _adjacent(TA, i, TB, j) and segment_may_meet_triangle_at(
-                        V, TA[i, 0], TA[i, 1], TB[j, 0], TB[j, 1], TB[j, 2]):
-                    if not over and pos + kept < lim:
-                        J[pos + kept] = j
-                    kept += 1
-            counts[i] = kept
-            pos, over = _close_row(J, pos, kept, lim, over)
-        full[c] = over
+        c, k = claim_next(counter, w, 0)
+        while c >= 0:
+            if todo[c]:  # (not a `continue`: with one, LLVM made `_fill_chunks`' rows 1.16x slower)
+                pos = bstart[c]
+                lim = blim[c]
+                over = False
+                dmin = partial[c]
+                for i in range(starts[c], starts[c + 1]):
+                    n = np.int64(0)
+                    for _ in range(2):  # a row with more hits than the scratch: visit it again (one call site)
+                        n = _visit_row(MODE_FILL_ALL, i, self_query, loA, hiA, TA, cloA, chiA, smallA, loB, hiB,
+                                       TB, dims, bits, reach, boff, cmax, ent_key, ent_id, ent_box, ent_clo, compact,
+                                       bigB, gap_off, hits, 0, hits.shape[0], V, none, buf)
+                        if n <= hits.shape[0]:
+                            break
+                        hits = np.empty(2 * n, dtype=np.int64)
+                    kept = 0
+                    for q in range(n):
+                        j = hits[q]
+                        _fold_owned(V, TA, i, TB, j, face_edges, owner_face, owner_edge, loE, hiE, loF, hiF,
+                                    inflation, slack, dmin)
+                        if not _adjacent(TA, i, TB, j) and segment_may_meet_triangle_at(
+                                V, TA[i, 0], TA[i, 1], TB[j, 0], TB[j, 1], TB[j, 2]):
+                            if not over and pos + kept < lim:
+                                J[pos + kept] = j
+                            kept += 1
+                    counts[i] = kept
+                    pos, over = _close_row(J, pos, kept, lim, over)
+                full[c] = over
+            c, k = claim_next(counter, w, k)
 
 
 _start_chunks = parallel_kernel(_start_chunks_py, "_bp_start_chunks", _PARALLEL_MIN_ROWS)
@@ -1469,9 +1476,11 @@ def _pairs_pass(args, n, mode=MODE_FILL, V=None, fold=None):
 
     def fill(todo, bstart_, blim_, counts_, J_, full_):
         if fold is None:
-            _fill_chunks(n, *args, starts, todo, bstart_, blim_, counts_, J_, full_, mode, V)
+            _fill_chunks(n, *args, starts, todo, bstart_, blim_, counts_, J_, full_, mode, V,
+                         range_counter(n_chunks))
         else:
-            _start_chunks(n, *args, starts, todo, bstart_, blim_, counts_, J_, full_, V, *fold)
+            _start_chunks(n, *args, starts, todo, bstart_, blim_, counts_, J_, full_, V, *fold,
+                          range_counter(n_chunks))
 
     # Capacity from a sample of rows (a stride over all of them), with slack; a chunk
     # that still runs out is refilled at exact offsets, so the guess only costs time.

@@ -23,6 +23,7 @@ from ...constants import (
     CCD_TOL_REL,
     UNIT_ROUNDOFF,
 )
+from ..parallel import claim_next, range_counter
 
 _U = UNIT_ROUNDOFF  # the short name of the error bounds below
 _MAX_COORD = CCD_MAX_COORD
@@ -266,11 +267,15 @@ def _run_chunk(x_t0, x_t1, is_vf, thickness, t_max, lo, hi, status, toi, sep, wi
 
 
 @njit(cache=True, parallel=True)
-def _batch_parallel(x_t0, x_t1, is_vf, thickness, t_max, n_chunks, status, toi, sep, witness):
+def _batch_parallel(x_t0, x_t1, is_vf, thickness, t_max, n_chunks, status, toi, sep, witness, counter):
     q = x_t0.shape[0]
     per = (q + n_chunks - 1) // n_chunks
-    for ch in prange(n_chunks):
-        _run_chunk(x_t0, x_t1, is_vf, thickness, t_max, ch * per, min(q, (ch + 1) * per), status, toi, sep, witness)
+    for w in prange(counter[-1]):  # the chunks claimed by ranges (`parallel.claim_next`)
+        ch, k = claim_next(counter, w, 0)
+        while ch >= 0:
+            _run_chunk(x_t0, x_t1, is_vf, thickness, t_max, ch * per, min(q, (ch + 1) * per), status, toi, sep,
+                       witness)
+            ch, k = claim_next(counter, w, k)
 
 
 @njit(cache=True)
@@ -293,12 +298,15 @@ def _run_chunk_idx(V_t0, V_t1, idx, is_vf, thickness, t_max, lo, hi, status, toi
 
 
 @njit(cache=True, parallel=True)
-def _batch_idx_parallel(V_t0, V_t1, idx, is_vf, thickness, t_max, n_chunks, status, toi, sep, witness):
+def _batch_idx_parallel(V_t0, V_t1, idx, is_vf, thickness, t_max, n_chunks, status, toi, sep, witness, counter):
     q = idx.shape[0]
     per = (q + n_chunks - 1) // n_chunks
-    for ch in prange(n_chunks):
-        _run_chunk_idx(V_t0, V_t1, idx, is_vf, thickness, t_max, ch * per, min(q, (ch + 1) * per),
-                       status, toi, sep, witness)
+    for w in prange(counter[-1]):  # the chunks claimed by ranges (`parallel.claim_next`)
+        ch, k = claim_next(counter, w, 0)
+        while ch >= 0:
+            _run_chunk_idx(V_t0, V_t1, idx, is_vf, thickness, t_max, ch * per, min(q, (ch + 1) * per),
+                           status, toi, sep, witness)
+            ch, k = claim_next(counter, w, k)
 
 
 def ccd_batch_indexed(V_t0, V_t1, idx, is_vf, thickness, t_max, n_chunks):
@@ -311,7 +319,8 @@ def ccd_batch_indexed(V_t0, V_t1, idx, is_vf, thickness, t_max, n_chunks):
     if q <= _SERIAL_MAX:
         _run_chunk_idx(V_t0, V_t1, idx, is_vf, thickness, t_max, 0, q, status, toi, sep, witness)
     else:
-        _batch_idx_parallel(V_t0, V_t1, idx, is_vf, thickness, t_max, n_chunks, status, toi, sep, witness)
+        _batch_idx_parallel(V_t0, V_t1, idx, is_vf, thickness, t_max, n_chunks, status, toi, sep, witness,
+                            range_counter(n_chunks))
     return status, toi, sep, witness
 
 
@@ -334,5 +343,6 @@ def ccd_batch(x_t0, x_t1, is_vf, thickness, t_max, n_chunks):
     if q <= _SERIAL_MAX:
         _run_chunk(x_t0, x_t1, is_vf, thickness, t_max, 0, q, status, toi, sep, witness)
     else:
-        _batch_parallel(x_t0, x_t1, is_vf, thickness, t_max, n_chunks, status, toi, sep, witness)
+        _batch_parallel(x_t0, x_t1, is_vf, thickness, t_max, n_chunks, status, toi, sep, witness,
+                        range_counter(n_chunks))
     return status, toi, sep, witness

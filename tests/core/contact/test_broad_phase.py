@@ -724,6 +724,45 @@ def test_fused_start_pass_is_the_separate_one(rng, monkeypatch, kind, refill):
             assert len(cand) > 0
 
 
+@pytest.mark.parametrize("refill", [False, True], ids=["fits", "refilled"])
+def test_pair_passes_give_the_same_bits_for_any_claiming_workers(rng, monkeypatch, refill):
+    # The listing passes' workers claim chunks by ranges (`parallel.range_counter`):
+    # 1, 2, 3 or 7 workers (more than the chunks of some passes), on 1 and 2 threads, every
+    # chunk's buffer fitting or refilled, give the same candidates as the brute force and
+    # the same fused start pass (candidates and minimum) bit for bit.
+    import numba
+
+    from penfree.core import parallel
+
+    x, E, F, Q = _start_scene("folded-cloth", rng)
+    x1 = _motion("swept", x, rng)
+    monkeypatch.setattr(bp, "_PAIR_CHUNK_MIN_ROWS", 16)
+    monkeypatch.setattr(bp._fill_chunks, "min_work", 0)
+    monkeypatch.setattr(bp._start_chunks, "min_work", 0)
+    if refill:
+        monkeypatch.setattr(bp, "_CAP_SLACK", 0.0)
+        monkeypatch.setattr(bp, "_CAP_PAD", 0)
+    want_ee = edge_edge_candidates_brute(x, x1, E, 0.01)
+    want_vf = vertex_face_candidates_brute(x, x1, F, 0.01)
+    assert len(want_ee) and len(want_vf)
+    start = None
+    old = numba.get_num_threads()
+    try:
+        for workers in (1, 2, 3, 7):
+            monkeypatch.setattr(bp, "range_counter", lambda n, w=workers: parallel.range_counter(n, workers=w))
+            for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+                numba.set_num_threads(threads)
+                np.testing.assert_array_equal(edge_edge_candidates(x, x1, E, 0.01), want_ee)
+                np.testing.assert_array_equal(vertex_face_candidates(x, x1, F, 0.01), want_vf)
+                cand, d2 = bp.start_pass(x, E, F, Q, 0.01)
+                if start is None:
+                    start = cand, d2
+                np.testing.assert_array_equal(cand, start[0])
+                assert d2 == start[1]
+    finally:
+        numba.set_num_threads(old)
+
+
 @pytest.mark.parametrize("inflation", [0.0, 0.004, 0.03])
 @pytest.mark.parametrize("kind", ["cloth", "folded-cloth", "vertex-subset"])
 def test_fused_start_pass_minimum_is_exact(rng, kind, inflation):
