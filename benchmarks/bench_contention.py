@@ -8,7 +8,14 @@ the machine as it is ("idle"), then with a background busy process spinning on o
 ("loaded"). Ratios are formed within one condition (fit / floor) and across the two
 (loaded / idle).
 
-    .venv/bin/python benchmarks/bench_contention.py [--repeats 200] [--vertices 65536] [--busy 1]
+With ``--verify``, the same for two proofs on the 64K cloth of `bench_verify.py`: the
+certificate path of an affine step (`verify_affine_step`, thickness 0: its fused start
+pass) and `verify_step` of the gentle step at thickness 1e-4 (its listing passes and CCD
+batches), on all threads idle and loaded and on one thread idle. Their parallel passes
+claim chunks by ranges (`penfree.core.parallel.range_counter`), so a descheduled thread
+should cost a loaded run its share of the work, not the whole region's wait.
+
+    .venv/bin/python benchmarks/bench_contention.py [--repeats 200] [--vertices 65536] [--busy 1] [--verify]
 
 The machine the figures in BENCHMARKS.md come from is shared: "idle" means "as loaded as
 it was", which is why the medians of many short repeats and ratios are reported.
@@ -56,6 +63,31 @@ def variants(x_prev, x, out, repeats):
     return res
 
 
+def proofs(n):
+    """{name: callable} of the two proofs of ``--verify`` on the n-vertex cloth of bench_verify."""
+    from bench_verify import cloth
+
+    from penfree.core.verify.affine import verify_affine_step
+
+    x0, _, _, F = cloth(n, "gentle")
+    c, s = np.cos(np.radians(3)), np.sin(np.radians(3))
+    A = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]) @ np.diag([1.02, 0.98, 1.01])
+    centre = x0.mean(axis=0)
+    b = np.array([0.01, -0.005, 0.002])
+    x_def = (x0 - centre) @ A.T + centre + b  # centred, as deform computes it
+    b_eff = centre + b - A @ centre
+    g0, g1, _, _ = cloth(n, "gentle")
+    fns = {"certificate path": lambda: verify_affine_step(x0, x_def, A, b_eff, faces=F, thickness=0.0),
+           "verify_step": lambda: penfree.verify_step(g0, g1, faces=F, thickness=1e-4)}
+    for fn in fns.values():
+        assert fn().ok  # first calls (cache loads) before any timing; both proofs hold
+    return fns
+
+
+def proof_times(fns, repeats):
+    return {name: median_time(fn, repeats) for name, fn in fns.items()}
+
+
 def busy(n):
     code = "import time\nt = time.time()\nwhile time.time() - t < 600: pass\n"
     procs = [subprocess.Popen([sys.executable, "-c", code]) for _ in range(n)]
@@ -68,6 +100,7 @@ def main(argv=None):
     ap.add_argument("--vertices", type=int, default=65536)
     ap.add_argument("--repeats", type=int, default=200)
     ap.add_argument("--busy", type=int, default=1, help="background busy processes in the loaded run")
+    ap.add_argument("--verify", action="store_true", help="also the certificate path and verify_step (64K cloth)")
     args = ap.parse_args(argv)
     print(f"penfree {penfree.__version__}, numba {numba.__version__} (threads {numba.get_num_threads()}), N = {args.vertices}, median of {args.repeats}; "
           f"PARALLEL_MIN_VERTICES = {K.PARALLEL_MIN_VERTICES}, FIT_BUILD = {K.FIT_BUILD}")
@@ -80,9 +113,20 @@ def main(argv=None):
     # over from call to call (`penfree.core.parallel.Pace`), and an idle run right after
     # a loaded one would start from the loaded machine's choice.
     idle = [variants(x_prev, x, out, args.repeats) for _, x_prev, x, out in inputs]
+    fns = proofs(args.vertices) if args.verify else {}
+    proof_repeats = max(5, args.repeats // 10)  # a proof takes 40-200 ms
+    if fns:
+        proof_idle = proof_times(fns, proof_repeats)
+        threads = numba.get_num_threads()
+        numba.set_num_threads(1)
+        try:
+            proof_one = proof_times(fns, proof_repeats)
+        finally:
+            numba.set_num_threads(threads)
     procs = busy(args.busy)
     try:
         loaded = [variants(x_prev, x, out, args.repeats) for _, x_prev, x, out in inputs]
+        proof_loaded = proof_times(fns, proof_repeats) if fns else {}
     finally:
         for p in procs:
             p.kill()
@@ -101,6 +145,16 @@ def main(argv=None):
         print(f"{dtype:<8} {'floor':<9} {idle['floor'][0]*1e3:7.3f}ms {'':>9} {'':>7} {loaded['floor'][0]*1e3:7.3f}ms")
     print("median times; /floor and loaded/idle are ratios of medians; mean shows the stalls of late threads")
     print(f"(scene: {source}; loaded = {args.busy} busy process(es) on a {__import__('os').cpu_count()}-core machine)")
+    if fns:
+        print(f"\nproofs on the {args.vertices}-vertex cloth of bench_verify.py, median of {proof_repeats}")
+        hdr = (f"{'proof':<17} {'idle':>9} {'mean':>9} {'loaded':>9} {'mean':>9} {'loaded/idle':>12} "
+               f"{'1 thread idle':>14}")
+        print(hdr)
+        print("-" * len(hdr))
+        for name in fns:
+            (ti, mi), (tl, ml), (t1, _) = proof_idle[name], proof_loaded[name], proof_one[name]
+            print(f"{name:<17} {ti*1e3:7.1f}ms {mi*1e3:7.1f}ms {tl*1e3:7.1f}ms {ml*1e3:7.1f}ms {tl/ti:11.2f}x "
+                  f"{t1*1e3:12.1f}ms")
 
 
 if __name__ == "__main__":
