@@ -55,9 +55,11 @@ class PenfreeGroup(click.Group):
         from ..formats.atomic import reset_committed
 
         from ..core.memory import retain_freed_memory, skip_exit_collection
+        from ..core.parallel import limit_spin_wait
 
         reset_committed()
         retain_freed_memory()  # large scratch arrays reused, not re-faulted per call
+        limit_spin_wait()  # before any parallel kernel: OpenMP's idle threads yield a busy machine's cores
         previous = _catch_sigterm()
         try:
             rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)

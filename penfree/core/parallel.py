@@ -26,6 +26,7 @@ between their two builds from the measured cost of each instead.
 from __future__ import annotations
 
 import math
+import os
 import time
 import types
 
@@ -35,6 +36,36 @@ import numpy as np
 from numba import njit, types as nbtypes
 from numba.core import cgutils
 from numba.extending import intrinsic
+
+#: GNU OpenMP's spin count for idle worker threads that `limit_spin_wait` sets.
+SPIN_COUNT = 10_000
+
+
+def limit_spin_wait(environ=None) -> bool:
+    """Let GNU OpenMP's idle worker threads spin ``SPIN_COUNT`` times (~0.7 ms) before
+    they sleep, instead of libgomp's default 300,000 (~8 ms after every parallel region,
+    measured as a worker's CPU time); True when it set ``GOMP_SPINCOUNT``.
+
+    Numba's ``omp`` threading layer runs its regions on libgomp. Between a step's
+    regions the CLI runs Python for tens to hundreds of microseconds, and with the
+    default a worker spins through all of it: free on an idle machine, but where another
+    process holds one of two cores the spinning worker takes CPU time from the command's
+    own main thread. There `penfree deform --model auto` of the 64K cloth ran at 10.0-11.5
+    steps/s on 2 threads against 15.2 on one; with this limit, 14-15 steps/s (the steps
+    ~1.3x faster), and the same on an idle machine (BENCHMARKS.md, fifty-first session).
+
+    Only the environment is set (`environ`, default ``os.environ``; so the processes the
+    command starts inherit it too): libgomp reads it once, when it is loaded, which Numba
+    does when it starts its threading layer, at the first parallel kernel. A user's own
+    ``GOMP_SPINCOUNT`` or ``OMP_WAIT_POLICY`` is left as it is. The CLI and the tasks of
+    `penfree.scaleout` call this; a library user may.
+    """
+    environ = os.environ if environ is None else environ
+    if "GOMP_SPINCOUNT" in environ or "OMP_WAIT_POLICY" in environ:
+        return False
+    environ["GOMP_SPINCOUNT"] = str(SPIN_COUNT)
+    return True
+
 
 #: Work items (pairs, vertices, ...) below which a parallel region does not pay.
 #: At ~20-50 ns per item, 1<<15 items is ~1 ms of serial work: a descheduled

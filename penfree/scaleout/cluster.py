@@ -250,16 +250,19 @@ def task_threads(threads, workers=None, scheduler=None, in_process=False):
 
 
 def task_setup(threads):
-    """A task's set-up on its worker: Numba's thread count (`threads`, when given) and
-    freed blocks kept in the heap (`retain_freed_memory`, as the CLI's process does).
+    """A task's set-up on its worker: Numba's thread count (`threads`, when given),
+    freed blocks kept in the heap (`retain_freed_memory`) and OpenMP's idle threads
+    spinning briefly (`parallel.limit_spin_wait`), as the CLI's process does.
 
     A Dask worker is a process of its own, and its nanny starts it with glibc told to
     give freed memory back at once (``MALLOC_TRIM_THRESHOLD_``): without this, every
     scratch array of every step came back as fresh pages, faulted in one at a time.
     """
     from ..core.memory import retain_freed_memory
+    from ..core.parallel import limit_spin_wait
 
     retain_freed_memory()
+    limit_spin_wait()  # a no-op once this worker has run a parallel kernel (libgomp loaded)
     if threads:
         import numba
 

@@ -138,3 +138,21 @@ def test_only_the_ending_process_skips_its_exit_collection(tmp_path, monkeypatch
     assert e.value.code == 0 and calls == [1]
     assert main.main(["info", str(p)], standalone_mode=False) == 0  # a caller's process: left alone
     assert calls == [1]
+
+
+def test_the_command_bounds_openmp_spinning_before_its_kernels(tmp_path, monkeypatch):
+    # `penfree` sets GOMP_SPINCOUNT (`parallel.limit_spin_wait`) as it starts, before any
+    # parallel kernel loads libgomp, and leaves a user's own OpenMP setting alone.
+    from penfree.cli import main
+    from penfree.core import parallel
+
+    p = tmp_path / "rods.h5"
+    write_sequence(p, _seq())
+    env = {k: v for k, v in os.environ.items() if k not in ("GOMP_SPINCOUNT", "OMP_WAIT_POLICY")}
+    monkeypatch.setattr(os, "environ", env)
+    assert main.main(["info", str(p)], standalone_mode=False) == 0
+    assert env["GOMP_SPINCOUNT"] == str(parallel.SPIN_COUNT)
+    env.pop("GOMP_SPINCOUNT")
+    env["OMP_WAIT_POLICY"] = "active"
+    assert main.main(["info", str(p)], standalone_mode=False) == 0
+    assert "GOMP_SPINCOUNT" not in env

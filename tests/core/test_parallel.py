@@ -1,10 +1,15 @@
 """The serial / parallel dispatch rule: by work size and thread count, and both builds of
 a kernel give the same bits (the serial build is the oracle)."""
 
+import os
+import subprocess
+import sys
+import textwrap
 import time
 
 import numba
 import numpy as np
+import pytest
 from numba import prange
 
 from penfree.core import parallel
@@ -321,3 +326,72 @@ def test_chunk_count_bounds():
     assert parallel.chunk_count(3, 8, 4) == 1
     assert parallel.chunk_count(10, 8, 4) == 2
     assert parallel.chunk_count(10**6, 8, 4) == 8
+
+
+def test_limit_spin_wait_sets_the_spin_count_unless_the_user_chose():
+    env = {}
+    assert parallel.limit_spin_wait(env)
+    assert env == {"GOMP_SPINCOUNT": str(parallel.SPIN_COUNT)}
+    for user in ({"GOMP_SPINCOUNT": "300000"}, {"OMP_WAIT_POLICY": "active"}, {"OMP_WAIT_POLICY": "passive"}):
+        env = dict(user)
+        assert not parallel.limit_spin_wait(env)
+        assert env == user
+
+
+_SPIN_PROBE = textwrap.dedent("""
+    import glob, sys, threading, time
+    import numpy as np
+    from penfree.core import parallel
+    if sys.argv[1] == "limit":
+        assert parallel.limit_spin_wait()
+    import numba
+    from numba import njit, prange
+
+    @njit(parallel=True)
+    def total(a):
+        s = 0.0
+        for i in prange(a.shape[0]):
+            s += a[i]
+        return s
+
+    def cpu_ns():  # CPU time of each of this process's threads
+        out = {}
+        for d in glob.glob("/proc/self/task/*"):
+            with open(d + "/schedstat") as f:
+                out[d] = int(f.read().split()[0])
+        return out
+
+    main = f"/proc/self/task/{threading.get_native_id()}"
+    a = np.ones(1 << 16)
+    total(a)
+    print(numba.threading_layer())
+    spins = []
+    for _ in range(5):
+        total(a)
+        before = cpu_ns()
+        time.sleep(0.1)
+        after = cpu_ns()
+        spins.append(sum(v - before.get(k, 0) for k, v in after.items() if k != main) / 1e6)
+    print(min(spins))
+""")
+
+
+def _idle_worker_ms(mode):
+    out = subprocess.run([sys.executable, "-c", _SPIN_PROBE, mode], capture_output=True, text=True, check=True,
+                         env={k: v for k, v in os.environ.items() if k not in ("GOMP_SPINCOUNT", "OMP_WAIT_POLICY")})
+    layer, ms = out.stdout.split()
+    return layer, float(ms)
+
+
+def test_idle_openmp_workers_stop_spinning_soon_after_a_region():
+    # The CPU time the worker threads take in the 100 ms after a parallel region, while
+    # the main thread sleeps: libgomp's default spins ~8 ms (a busy machine's core, taken
+    # from the command's own main thread), `limit_spin_wait` before the first region
+    # ~0.7 ms. The smallest of five windows, so that a descheduled probe cannot inflate it.
+    if not sys.platform.startswith("linux") or numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs /proc and two threads")
+    layer, default_ms = _idle_worker_ms("default")
+    if layer != "omp" or default_ms < 3.0:
+        pytest.skip(f"threading layer {layer}, idle workers spin {default_ms:.2f} ms without the limit")
+    layer, limited_ms = _idle_worker_ms("limit")
+    assert limited_ms < 2.0 < default_ms
