@@ -262,7 +262,7 @@ def task_setup(threads):
     from ..core.parallel import limit_spin_wait
 
     retain_freed_memory()
-    limit_spin_wait()  # a no-op once this worker has run a parallel kernel (libgomp loaded)
+    limit_spin_wait()  # in effect from the worker's first task (libgomp loads at its first parallel kernel)
     if threads:
         import numba
 
