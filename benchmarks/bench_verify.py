@@ -89,7 +89,13 @@ def block_medians(fns, repeats):
     block per peer, the medians of the ~10 ms rods rows moved by +-30% between runs.
     Single calls round-robin were tried and dropped: each call then starts cold after the
     other peer's (the 12M-pair cloth row took 3.8 instead of 1.5-2.3 s).
+
+    Every function runs once before any is timed, so that its first call at this scene's
+    size (fresh scratch memory faulted in, or a thread pool started) is not one of the
+    timed ones: with three repeats, one slow call of three moves the median.
     """
+    for fn in fns.values():
+        fn()
     times = {k: [] for k in fns}
     outs = {}
     start = time.perf_counter()
