@@ -65,19 +65,13 @@ def variants(x_prev, x, out, repeats):
 
 def proofs(n):
     """{name: callable} of the two proofs of ``--verify`` on the n-vertex cloth of bench_verify."""
-    from bench_verify import cloth
+    from bench_verify import affine_cloth_step, cloth
 
     from penfree.core.verify.affine import verify_affine_step
 
-    x0, _, _, F = cloth(n, "gentle")
-    c, s = np.cos(np.radians(3)), np.sin(np.radians(3))
-    A = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]) @ np.diag([1.02, 0.98, 1.01])
-    centre = x0.mean(axis=0)
-    b = np.array([0.01, -0.005, 0.002])
-    x_def = (x0 - centre) @ A.T + centre + b  # centred, as deform computes it
-    b_eff = centre + b - A @ centre
-    g0, g1, _, _ = cloth(n, "gentle")
-    fns = {"certificate path": lambda: verify_affine_step(x0, x_def, A, b_eff, faces=F, thickness=0.0),
+    x0, x_def, A, b, F = affine_cloth_step(n)
+    g0, g1, _, _ = cloth(n, "gentle")  # g0 is x0: the step that verify_step checks is frame 0 -> 1
+    fns = {"certificate path": lambda: verify_affine_step(x0, x_def, A, b, faces=F, thickness=0.0),
            "verify_step": lambda: penfree.verify_step(g0, g1, faces=F, thickness=1e-4)}
     for fn in fns.values():
         assert fn().ok  # first calls (cache loads) before any timing; both proofs hold

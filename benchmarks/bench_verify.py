@@ -146,14 +146,20 @@ def bench_scene(name, make, n, regime, repeats, thickness):
           f"{t_ipc:>9.3f} {ph:<13} {t_ipc / t_pf:>7.2f}x  {'safe' if r.ok else 'VIOL':<5} {agree:<5} ({others})")
 
 
-def bench_affine(n, repeats, thickness):
+def affine_cloth_step(n):
+    """(x0, x_def, A, b, F): the gentle n-vertex cloth's frame 0 moved by a rotation with
+    stretch, x_def = A x0 + b computed centred (as deform computes it)."""
     x0, _, _, F = cloth(n, "gentle")
     c, s = np.cos(np.radians(3)), np.sin(np.radians(3))
     A = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]) @ np.diag([1.02, 0.98, 1.01])
     b = np.array([0.01, -0.005, 0.002])
     centre = x0.mean(axis=0)
-    x_def = (x0 - centre) @ A.T + centre + b  # centred, as deform computes it
-    b_eff = centre + b - A @ centre
+    x_def = (x0 - centre) @ A.T + centre + b
+    return x0, x_def, A, centre + b - A @ centre, F
+
+
+def bench_affine(n, repeats, thickness):
+    x0, x_def, A, b_eff, F = affine_cloth_step(n)
     phases, run = ipc_runner(x0, x_def, None, F, thickness)
     res = block_medians({
         "cert": lambda: verify_affine_step(x0, x_def, A, b_eff, faces=F, thickness=thickness),

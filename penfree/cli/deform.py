@@ -7,11 +7,12 @@ import click
 import numpy as np
 
 from ..constants import MODELS, PROJECTIONS
+from ..core.parallel import set_threads
 from ..errors import InputError
 from ..sequence import SCALE_MAX
 from .options import (
     FiniteFloat, Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames,
-    contact_radius_option, scaleout_options, set_threads, thickness_option, threads_option, usd_options,
+    contact_radius_option, scaleout_options, thickness_option, threads_option, usd_options,
 )
 
 

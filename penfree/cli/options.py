@@ -91,14 +91,6 @@ def usd_options(f):
                              "time-sampled Mesh and linear BasisCurves).")(f)
 
 
-def set_threads(threads):
-    if threads is None:
-        return
-    import numba
-
-    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-
-
 def echo_json(obj):
     """Strict JSON on stdout (NaN and inf as null, as in report.json)."""
     from ..formats._json import json_safe

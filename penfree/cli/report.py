@@ -6,11 +6,11 @@ import click
 from click.core import ParameterSource
 
 from ..constants import DEFAULT_CD_SHARE, DEFAULT_FRAME_MS, DEFAULT_GAMMA
+from ..core.parallel import set_threads
 from ..errors import InputError
 from ..sequence import SCALE_MAX
 from .options import (
     FiniteFloat, Progress, echo_json, frames_option, json_option, overwrite_option, parse_frames, scaleout_options,
-    set_threads,
     threads_option,
 )
 

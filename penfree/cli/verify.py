@@ -3,10 +3,11 @@
 import click
 
 from ..constants import DEFAULT_MAX_PAIRS
+from ..core.parallel import set_threads
 from ..errors import InputError
 from .options import (
-    Progress, echo_json, frames_option, json_option, no_step_error, parse_frames, scaleout_options, set_threads,
-    thickness_option, threads_option, usd_options,
+    Progress, echo_json, frames_option, json_option, no_step_error, parse_frames, scaleout_options, thickness_option,
+    threads_option, usd_options,
 )
 
 

@@ -132,6 +132,13 @@ def thread_count() -> int:
     return _get_threads()
 
 
+def set_threads(threads):
+    """Numba's thread count for the calling thread's kernels: `threads`, at most Numba's
+    pool; None keeps it. (The CLI's ``--threads``, and a Dask task's.)"""
+    if threads:
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
 def one_thread(kernel, *args):
     """``kernel(*args)`` with Numba's thread count (thread-local) at 1 for the call."""
     n = thread_count()
@@ -184,12 +191,16 @@ def claim(typingctx, counter):
     sig = nbtypes.int64(counter)
 
     def codegen(context, builder, signature, args):
-        ary = context.make_array(signature.args[0])(context, builder, args[0])
-        first = context.get_constant(nbtypes.intp, 0)
-        ptr = cgutils.get_item_pointer(context, builder, signature.args[0], ary, [first])
-        return builder.atomic_rmw("add", ptr, context.get_constant(nbtypes.int64, 1), ordering="monotonic")
+        return _fetch_add_one(context, builder, signature.args[0], args[0], context.get_constant(nbtypes.intp, 0))
 
     return sig, codegen
+
+
+def _fetch_add_one(context, builder, ary_type, ary, index):
+    # `claim`'s and `claim_at`'s code: an LLVM ``atomicrmw add`` of 1 at ary[index] (intp).
+    ptr = cgutils.get_item_pointer(context, builder, ary_type, context.make_array(ary_type)(context, builder, ary),
+                                   [index])
+    return builder.atomic_rmw("add", ptr, context.get_constant(nbtypes.int64, 1), ordering="monotonic")
 
 
 @intrinsic
@@ -202,10 +213,8 @@ def claim_at(typingctx, counter, k):
     sig = nbtypes.int64(counter, k)
 
     def codegen(context, builder, signature, args):
-        ary = context.make_array(signature.args[0])(context, builder, args[0])
-        idx = context.cast(builder, args[1], signature.args[1], nbtypes.intp)
-        ptr = cgutils.get_item_pointer(context, builder, signature.args[0], ary, [idx])
-        return builder.atomic_rmw("add", ptr, context.get_constant(nbtypes.int64, 1), ordering="monotonic")
+        index = context.cast(builder, args[1], signature.args[1], nbtypes.intp)
+        return _fetch_add_one(context, builder, signature.args[0], args[0], index)
 
     return sig, codegen
 
@@ -241,7 +250,7 @@ def range_counter(n_chunks: int, workers: int | None = None):
     """
     t = thread_count() if workers is None else workers
     bounds = (np.arange(t + 1, dtype=np.int64) * n_chunks) // t
-    return np.concatenate([bounds[:-1], bounds[1:], [t]]).astype(np.int64)
+    return np.concatenate([bounds[:-1], bounds[1:], [t]])
 
 
 def chunk_count(work: int, most: int, least_each: int) -> int:

@@ -259,11 +259,8 @@ def task_setup(threads):
     scratch array of every step came back as fresh pages, faulted in one at a time.
     """
     from ..core.memory import retain_freed_memory
-    from ..core.parallel import limit_spin_wait
+    from ..core.parallel import limit_spin_wait, set_threads
 
     retain_freed_memory()
     limit_spin_wait()  # in effect from the worker's first task (libgomp loads at its first parallel kernel)
-    if threads:
-        import numba
-
-        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    set_threads(threads)
