@@ -196,6 +196,27 @@ def test_deform_local_workers_and_no_silent_overwrite(inputs, tmp_path):
     assert sorted(p.name for p in out.parent.iterdir()) == ["rods_def.h5"]
 
 
+@pytest.mark.parametrize("bad", ["exists", "frames", "baseline", "input"])
+def test_report_ended_by_a_check_starts_no_worker_server(inputs, tmp_path, monkeypatch, bad):
+    """`report --workers` checks its arguments before it starts the process the workers
+    are forked from, so a command they end (exit 2) starts none. An unreadable input is
+    found later, while the server prepares itself: the control that the stub is called."""
+    from penfree.scaleout import cluster
+
+    started = []
+    monkeypatch.setattr(cluster, "start_worker_server", lambda: started.append(1) or True)
+    out = tmp_path / "rep"
+    extra = {"frames": ["--frames", "5:2:0"], "baseline": ["--max-regression", "0.1"]}.get(bad, [])
+    if bad == "exists":
+        out.mkdir()
+        (out / "report.json").write_text("{}")
+    if bad == "input":
+        (inputs / "broken.h5").write_text("not HDF5")
+    r = CliRunner().invoke(main, ["report", str(inputs), "-o", str(out), "--workers", "2", *extra])
+    assert r.exit_code == 2, r.output
+    assert started == ([1] if bad == "input" else []), r.output
+
+
 def test_verify_and_report_many_equal_serial(inputs, tmp_path, scheduler):
     runner = CliRunner()
     out = tmp_path / "out"

@@ -92,10 +92,6 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
     # Several plain files run here as before; directories and globs expand; Dask on request.
     files = expand_inputs(files, missing_ok=True)
     scale = workers is not None or scheduler is not None
-    if scale:
-        from . import scaleout
-
-        scaleout.start_workers(scheduler)
     check_report_dir(outdir, overwrite, inputs=list(files) + ([baseline_path] if baseline_path else []))
     frame_slice = parse_frames(frames)
     set_threads(threads)
@@ -109,6 +105,10 @@ def command(files, outdir, overwrite, cd_share, frame_ms, replay, client, trunca
         load_ipctk()  # exit 2 with the install hint before any work
         client_opts = {"client": client, "truncation": truncation, "radius": radius_rule, "dhat": dhat,
                        "every": every}
+    if scale:  # after the checks that can end the command, before the inputs are read
+        from . import scaleout
+
+        scaleout.start_workers(scheduler)
     # All inputs checked first; a long recording by its per-step tables (its frames are read
     # a range at a time, as verify reads them).
     long = [is_long(path, "result") for path in files]
