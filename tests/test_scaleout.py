@@ -902,6 +902,37 @@ print(len(os.listdir("/proc/self/task")), launched, gc.get_freeze_count() > 0, p
 """
 
 
+_TASKS_AFTER_PRELOAD = """
+import importlib.util, os, sys, tempfile
+import penfree.scaleout.preload  # noqa: F401
+before = set(sys.modules)
+sys.modules["penfree.scaleout.plan"].MAX_TASK_BYTES = 4000  # frame ranges: partial results, their merge
+from penfree.scaleout import deform_many, report_many, verify_many
+d = tempfile.mkdtemp()
+outs = [os.path.join(d, name) for name in ("cloth_drape_box.h5", "rods.h5")]
+for out in outs:
+    deform_many([os.path.join(sys.argv[1], os.path.basename(out))], out, options=dict(
+        model="auto", projection="auto", margin=0.0, thickness=None, frames=(0, 6), per_vertex=False),
+        with_stats=True, in_process=True)
+verify_many(outs, in_process=True)
+client = dict(client="ipctk", truncation="both", radius="both", dhat=None, every=5)
+report_many(outs, options=dict(frames=None, cd_share=0.5, frame_ms=32.0, replay=True, ladder=True,
+                               use_stored_stats=False, verify_paths=True,
+                               client=client if importlib.util.find_spec("ipctk") else None), in_process=True)
+print(sorted(m for m in set(sys.modules) - before if m.startswith("penfree")))
+"""
+
+
+def test_worker_server_preload_covers_what_the_tasks_import():
+    """A forked worker finds every penfree module its tasks import already imported by the
+    server (`preload`): deform with `auto`, frame ranges and their merge, a scene with an
+    analytic collider, verify, report with its statistics and the real client. A module
+    missed there would be imported by each worker, on every run (10-20 ms each here)."""
+    out = subprocess.run([sys.executable, "-c", _TASKS_AFTER_PRELOAD, str(SAMPLES)], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.strip().splitlines()[-1] == "[]", out
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="workers are forked on Linux only")
 def test_worker_server_preload_starts_no_thread():
     """The process a local cluster's workers are forked from must hold one thread when it
