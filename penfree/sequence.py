@@ -315,9 +315,15 @@ def _distance(value, where, name):
     return t
 
 
+def check_obstacle_name(name, where: str) -> None:
+    """InputError unless `name` can name an obstacle group (`where`: the file)."""
+    if not isinstance(name, str) or not name or "/" in name or name in (".", ".."):
+        raise InputError(f"obstacle names must be non-empty UTF-8 text without '/' (nor '.' or '..'); got "
+                         f"{name!r} in {where}:/obstacles")
+
+
 def _check_obstacle(ob: Obstacle, T: int, where: str):
-    if not isinstance(ob.name, str) or not ob.name or "/" in ob.name or ob.name in (".", ".."):
-        raise InputError(f"obstacle names must be non-empty and hold no '/'; got {ob.name!r} in {where}:/obstacles")
+    check_obstacle_name(ob.name, where)
     ds = f"{where}:/obstacles/{ob.name}"
     if ob.normal is not None or ob.offset is not None:
         _check_half_space(ob, ds)

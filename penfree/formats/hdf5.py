@@ -28,7 +28,8 @@ import numpy as np
 from ..constants import FORMAT_VERSION
 from ..errors import FormatError, InputError
 from ._json import json_default
-from ..sequence import OBSTACLE_FORMS, PROFILE_FIELDS, AnalyticShape, Obstacle, Sequence, check_shape
+from ..sequence import (OBSTACLE_FORMS, PROFILE_FIELDS, AnalyticShape, Obstacle, Sequence, check_obstacle_name,
+                        check_shape)
 from ._registry import register
 from .atomic import atomic_file
 from .chunks import read_frames, write_positions
@@ -100,6 +101,21 @@ def encode_attr(value):
     return "json:" + json.dumps(value, default=json_default)
 
 
+def _utf8(text: str) -> str:
+    """`text` as UTF-8 can write it. h5py hands a stored string whose bytes are not UTF-8
+    back with those bytes as lone surrogates, which no UTF-8 writer accepts: they become
+    U+FFFD, as undecodable bytes do."""
+    try:
+        text.encode("utf-8")
+        return text
+    except UnicodeEncodeError:
+        try:
+            raw = text.encode("utf-8", "surrogateescape")  # h5py's escapes: the bytes back
+        except UnicodeEncodeError:
+            raw = text.encode("utf-8", "surrogatepass")
+        return raw.decode("utf-8", "replace")
+
+
 def decode_attr(value, where="<attribute>"):
     """The inverse of :func:`encode_attr` (numpy scalars become Python scalars).
 
@@ -108,6 +124,7 @@ def decode_attr(value, where="<attribute>"):
     if isinstance(value, bytes):
         value = value.decode("utf-8", "replace")
     if isinstance(value, str):
+        value = _utf8(value)
         if not value.startswith("json:"):
             return value
         try:
@@ -239,6 +256,8 @@ def read_from_h5(f: h5py.File, where: str, window=None) -> Sequence:
     if obs is not None:
         if not isinstance(obs, h5py.Group):
             raise FormatError(f"obstacles must be a group of obstacles/<name> groups ({OBSTACLE_FORMS}) in {where}:/obstacles")
+        for name in obs:  # h5py gives a name that is not UTF-8 as bytes, which do not sort with str
+            check_obstacle_name(name, where)
         for name in sorted(obs):
             seq.obstacles.append(_read_obstacle(obs[name], f"obstacles/{name}", name, where, window, ds.shape[0]))
     return seq

@@ -162,6 +162,44 @@ def test_bad_inputs(tmp_path, build, exc, expect):
     assert "\n" not in str(err.value)
 
 
+def test_attributes_whose_bytes_are_not_utf8_are_read_with_replacement_characters(tmp_path, rng):
+    """h5py returns a stored string whose bytes are not UTF-8 with lone surrogates, which
+    no UTF-8 writer takes: `penfree deform` of such a file ended in a traceback while
+    writing its result (found by an adversarial sweep). They read as U+FFFD now, as
+    undecodable bytes attributes already did, and the file writes back."""
+    from click.testing import CliRunner
+
+    from penfree.cli import main
+
+    p = str(tmp_path / "in.h5")
+    write_sequence(p, scene_arrays(rng, np.float64))
+    with h5py.File(p, "a") as f:
+        f.attrs["source"] = b"sim \xff\xfe"
+        f.attrs["note"] = b"\xfeok"
+    with h5py.File(p) as f:
+        assert f.attrs["note"] == "\udcfeok"  # the form that failed to write
+    seq = read_sequence(p)
+    assert (seq.source, seq.attrs["note"]) == ("sim \ufffd\ufffd", "\ufffdok")
+    write_sequence(str(tmp_path / "copy.h5"), seq)
+    assert read_sequence(str(tmp_path / "copy.h5")).attrs["note"] == "\ufffdok"
+    out = tmp_path / "out.h5"
+    r = CliRunner().invoke(main, ["deform", p, "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    with h5py.File(out) as f:
+        assert f.attrs["note"] == "\ufffdok"
+
+
+def test_obstacle_name_that_is_not_utf8_is_refused(tmp_path, rng):
+    p = str(tmp_path / "in.h5")
+    write_sequence(p, scene_arrays(rng, np.float64))
+    with h5py.File(p, "a") as f:
+        f["obstacles"].move("floor", b"fl\xffoor")
+    with pytest.raises(InputError) as err:
+        read_sequence(p)
+    assert f"obstacle names must be non-empty UTF-8 text without '/' (nor '.' or '..'); got b'fl\\xffoor' in {p}:" \
+        "/obstacles" in str(err.value)
+
+
 def test_truncated_file(tmp_path, rng):
     p = tmp_path / "cut.h5"
     write_sequence(p, scene_arrays(rng, np.float64))
