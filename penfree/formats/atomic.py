@@ -283,7 +283,25 @@ def atomic_file(path, overwrite: bool = False):
 
         _Phase.actions.append((commit, lambda: (_unlink(tmp), remove_dirs(created))))
         os.chmod(tmp, _umask_mode(0o666))
-        yield tmp
+        with _write_failures(path):
+            yield tmp
+
+
+#: Errors of a write that the output's place causes (its file system), not the command.
+_WRITE_ERRNOS = (errno.ENOSPC, errno.EFBIG, errno.EDQUOT, errno.EIO, errno.EROFS)
+
+
+@contextmanager
+def _write_failures(path):
+    """A write into the temporary of `path` that fails for want of room (a full disk, a
+    quota, a file-size limit) or on a read-only or failing file system: one line naming
+    `path`, after `write_phase` removed the temporary."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.errno not in _WRITE_ERRNOS:
+            raise
+        raise InputError(f"cannot write output {path}: {_reason(exc)}; nothing was written") from None
 
 
 def _unlink(p):
@@ -374,7 +392,8 @@ def atomic_dir(path, overwrite: bool = False):
 
         _Phase.actions.append((commit, lambda: (shutil.rmtree(tmp, ignore_errors=True), remove_dirs(created))))
         os.chmod(tmp, _umask_mode(0o777))
-        yield tmp
+        with _write_failures(path):
+            yield tmp
 
 
 def _swap_dir(tmp: str, path: str, parent: str) -> None:

@@ -18,6 +18,7 @@ Errors name the file and the dataset: ``frames.h5:/positions``.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 from contextlib import contextmanager
@@ -79,6 +80,100 @@ def open_h5(path, mode="r"):
                           f"expected a complete HDF5 file") from None
     finally:
         f.close()
+
+
+class _Sink:
+    """The file HDF5 writes an output through (h5py's ``fileobj`` driver): positional
+    reads and writes on `path`'s descriptor, until a write fails; from then on writes are
+    counted and dropped, and `error` keeps the first failure. HDF5 never sees one."""
+
+    def __init__(self, path):
+        self.fd = os.open(path, os.O_RDWR)
+        self.pos = 0
+        self.error = None
+
+    def seek(self, pos, whence=0):
+        self.pos = pos if whence == 0 else self.pos + pos if whence == 1 else os.fstat(self.fd).st_size + pos
+        return self.pos
+
+    def tell(self):
+        return self.pos
+
+    def write(self, data):
+        view = memoryview(data).cast("B")
+        done = 0
+        while self.error is None and done < len(view):
+            try:
+                n = os.pwrite(self.fd, view[done:], self.pos + done)
+                if n == 0:
+                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                done += n
+            except OSError as exc:
+                self.error = exc
+        self.pos += len(view)
+        return len(view)
+
+    def readinto(self, buf):
+        try:
+            n = os.preadv(self.fd, [memoryview(buf).cast("B")], self.pos)
+        except OSError as exc:  # what a failed write left: HDF5 gets zeros, and the run fails below
+            self.error = self.error or exc
+            n = 0
+        self.pos += n
+        return n
+
+    def read(self, size=-1):
+        buf = bytearray(max(size, 0) if size >= 0 else max(os.fstat(self.fd).st_size - self.pos, 0))
+        return bytes(buf[:self.readinto(buf)])
+
+    def truncate(self, size=None):
+        size = self.pos if size is None else size
+        if self.error is None:
+            try:
+                os.ftruncate(self.fd, size)
+            except OSError as exc:
+                self.error = exc
+        return size
+
+    def flush(self):
+        pass  # every write went to the descriptor at once
+
+
+@contextmanager
+def new_h5(tmp, output):
+    """``h5py.File`` writing the atomic output `output` into `tmp` (`atomic_file`'s
+    temporary): a write that fails (a full disk, a quota, a file-size limit) is an
+    InputError naming `output`, never a damaged file, a crash or a traceback.
+
+    Why not ``with h5py.File(tmp, "w")``: h5py ignores errors when it closes a file or an
+    object (it prints them and goes on), so a write that failed there left a truncated
+    file to be renamed into place; and once a write has failed, HDF5 crashes (SIGSEGV)
+    when the file or an object is closed. Here HDF5 writes through `_Sink`, which keeps
+    the first failure and drops the writes after it, so HDF5 never sees one and closes
+    cleanly. The failure is raised once the file is closed (an error the body met after
+    it, such as HDF5 reading back a dropped block, is its consequence), and
+    `atomic_file` removes the temporary.
+    """
+    sink = _Sink(tmp)
+    try:
+        f = h5py.File(sink, "w")
+        try:
+            yield f
+        except Exception:
+            if sink.error is None:
+                raise
+        finally:
+            try:
+                f.close()
+            except Exception:
+                if sink.error is None:
+                    raise
+    finally:
+        os.close(sink.fd)
+    if sink.error is not None:
+        exc = sink.error
+        reason = os.strerror(exc.errno) if exc.errno else str(exc)
+        raise InputError(f"cannot write output {os.fspath(output)}: {reason}; nothing was written")
 
 
 def _h5_reason(exc) -> str:
@@ -421,7 +516,7 @@ def write_to_h5(f: h5py.File, seq: Sequence) -> None:
 
 def write_hdf5(path: str, seq: Sequence, overwrite: bool = False) -> None:
     with atomic_file(path, overwrite) as tmp:
-        with h5py.File(tmp, "w") as f:
+        with new_h5(tmp, path) as f:
             write_to_h5(f, seq)
 
 

@@ -37,7 +37,7 @@ from ..sequence import Sequence
 from .atomic import atomic_file
 from .frames import Frames, StepRows
 from .chunks import read_frames, write_positions
-from .hdf5 import frame_window, has_h5_magic, open_h5, read_attrs, read_from_h5, write_attrs, write_to_h5
+from .hdf5 import frame_window, has_h5_magic, new_h5, open_h5, read_attrs, read_from_h5, write_attrs, write_to_h5
 
 #: Per-step datasets that every reader needs (SPEC section 8); others may require more
 #: (`read_result`'s `require`, e.g. ``certificate_margin`` for ``report``).
@@ -235,7 +235,7 @@ def write_result(path, seq: Sequence, steps: dict, attrs: dict, groups: dict | N
         if name in SEQUENCE_NAMES or "/" in name:
             raise InputError(f"result group name {name!r} is reserved or not a plain name in {where}")
     with atomic_file(path, overwrite) as tmp:
-        with h5py.File(tmp, "w") as f:
+        with new_h5(tmp, path) as f:
             write_to_h5(f, seq)
             write_attrs(f, attrs)
             f.attrs["penfree_format"] = FORMAT_VERSION

@@ -37,7 +37,7 @@ from ..sequence import AnalyticShape, Obstacle, Sequence
 from ._registry import register
 from .atomic import atomic_file
 from ._json import json_default
-from .hdf5 import open_h5
+from .hdf5 import new_h5, open_h5
 from ._mesh_file import topology_from_cells
 
 MAIN_GRID = "penfree"
@@ -153,7 +153,7 @@ def write_xdmf(path: str, seq: Sequence, overwrite: bool = False) -> None:
         # Inner context (heavy data) is renamed first, so the XML never points at nothing.
         tmp_xml = stack.enter_context(atomic_file(path, overwrite))
         tmp_h5 = stack.enter_context(atomic_file(heavy_path(path), overwrite))
-        with h5py.File(tmp_h5, "w") as f:
+        with new_h5(tmp_h5, heavy_path(path)) as f:
             _collection(domain, f, h5name, MAIN_GRID, "main", seq.positions, seq.faces, seq.edges, times, node_data)
             if info["extra_edges"]:
                 f.create_dataset("main/extra_edges", data=np.asarray(seq.edges, dtype=np.int64))

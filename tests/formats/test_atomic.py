@@ -241,3 +241,93 @@ def test_trailing_separator_on_a_real_dir_still_works(tmp_path):
     with atomic_dir(str(out) + os.sep, overwrite=True) as tmp:
         open(os.path.join(tmp, "b.md"), "w").write("new")
     assert _listing(out) == ["b.md"] and _listing(tmp_path) == ["rep"]
+
+
+# --- a full disk while writing (found by an adversarial sweep) ------------------------------
+
+def _sample_result(tmp_path):
+    """A small deform result, written once: (sequence, steps, its size in bytes)."""
+    from penfree.core.pipeline.deform import deform_sequence
+    from penfree.formats import read_sequence
+    from penfree.formats.result import write_result
+
+    seq = read_sequence(os.path.join(os.path.dirname(__file__), "..", "..", "samples", "twisting_cloth.h5"))
+    steps = deform_sequence(seq, frames=(0, 6)).steps
+    full = tmp_path / "full.h5"
+    write_result(full, seq, steps, {"input": "twisting_cloth.h5"})
+    return seq, steps, full
+
+
+@pytest.mark.parametrize("writer", ["result", "sequence", "xdmf"])
+def test_a_full_disk_while_writing_leaves_nothing_and_names_the_output(tmp_path, monkeypatch, writer):
+    """HDF5 writes fail after `budget` bytes (ENOSPC). Before, h5py ignored a failure at a
+    close and renamed a truncated file into place, and HDF5 crashed (SIGSEGV) closing a
+    file after a failed write. Every budget short of the whole file is now one InputError
+    naming the output, and no file, temporary or directory is left; the whole budget
+    writes a file that reads back whole."""
+    import errno
+
+    from penfree.formats import read_sequence, write_sequence
+    from penfree.formats.result import read_result, write_result
+
+    seq, steps, full = _sample_result(tmp_path)
+    write = {"result": lambda p: write_result(p, seq, steps, {"input": "twisting_cloth.h5"}), "sequence": lambda p: write_sequence(p, seq),
+             "xdmf": lambda p: write_sequence(p, seq)}[writer]
+    name = "out.xdmf" if writer == "xdmf" else "out.h5"
+    real_pwrite, used = os.pwrite, [0]
+
+    def pwrite(fd, data, offset):
+        if used[0] + len(data) > budget:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        used[0] += len(data)
+        return real_pwrite(fd, data, offset)
+
+    monkeypatch.setattr(os, "pwrite", pwrite)
+    size = full.stat().st_size
+    for budget in [0, 100, 2000] + [size * k // 8 for k in range(1, 8)]:
+        used[0] = 0
+        out = tmp_path / f"b{budget}" / name
+        with pytest.raises(InputError) as err:
+            write(out)
+        assert str(err.value).startswith(f"cannot write output {out if writer != 'xdmf' else ''}"), err.value
+        assert "No space left on device; nothing was written" in str(err.value)
+        assert not out.parent.exists(), os.listdir(out.parent)  # the directory the write created, gone too
+    budget, used[0] = 10 * size, 0
+    out = tmp_path / "whole" / name
+    write(out)
+    if writer == "result":
+        back = read_result(str(out))
+        assert back.n_steps == len(steps["frame"])
+    else:
+        back = read_sequence(str(out))
+    assert (back.sequence if writer == "result" else back).positions.shape == seq.positions.shape
+
+
+def test_deform_and_report_under_a_file_size_limit_fail_in_one_line(tmp_path):
+    """The CLI, with the process's file-size limit below its output (SIGXFSZ ignored, so
+    a write fails with EFBIG as on a full disk): exit 2, one line, nothing written."""
+    import resource
+    import signal
+    import subprocess
+    import sys
+
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, 20_000))
+
+    src = os.path.join(os.path.dirname(__file__), "..", "..", "samples", "twisting_cloth.h5")
+    out = tmp_path / "out" / "def.h5"
+    cli = [sys.executable, "-m", "penfree"]
+    r = subprocess.run([*cli, "deform", src, "-o", str(out), "--frames", "0:6"], capture_output=True, text=True,
+                       preexec_fn=limit)
+    assert (r.returncode, r.stderr.count("\n")) == (2, 1), r.stderr
+    assert f"cannot write output {out}: File too large; nothing was written" in r.stderr
+    assert not out.parent.exists()
+    r = subprocess.run([*cli, "deform", src, "-o", str(out), "--frames", "0:6"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    rep = tmp_path / "rep"
+    r = subprocess.run([*cli, "report", str(out), "-o", str(rep), "--no-ladder"], capture_output=True, text=True,
+                       preexec_fn=limit)
+    assert (r.returncode, r.stderr.count("\n")) == (2, 1), r.stderr
+    assert "File too large; nothing was written" in r.stderr
+    assert sorted(os.listdir(tmp_path)) == ["out"]
