@@ -119,7 +119,7 @@ def command(input_paths, output_path, model, projection, margin, thickness, cont
                          dhat=resolve_dhat(dhat, seq.contact_radius if contact_radius is None else contact_radius,
                                            seq.thickness if thickness is None else thickness))
 
-    n_steps = step_indices(seq.n_frames, frame_slice).size  # (exit 2 here when it selects none)
+    n_steps = step_indices(seq.n_frames, frame_slice, input_path).size  # (exit 2 here when it selects none)
     with Progress(n_steps, "deform") as bar:
         result = deform_sequence(
             seq, model=model, projection=projection, margin=margin, thickness=thickness,
@@ -162,7 +162,7 @@ def _deform_long(input_path, output_path, opts, overwrite, with_stats, as_json):
     t0 = time.perf_counter()
     head = read_sequence(input_path, format="hdf5", frame_window=(0, 2))  # the summary's size and kind
     # the steps selected (exit 2 before any range is read when there are none)
-    n_steps = step_indices(_n_frames(input_path), opts["frames"]).size
+    n_steps = step_indices(_n_frames(input_path), opts["frames"], input_path).size
     with Progress(n_steps, "deform") as bar:
         [(_, _, steps)] = deform_many([input_path], output_path, options=dict(opts, progress=bar),
                                       overwrite=overwrite, with_stats=with_stats, in_process=True)

@@ -209,7 +209,7 @@ def test_progress_counts_the_selected_steps(cli, tmp_path, monkeypatch, long_fil
     out = tmp_path / "out.h5"
     r = cli("deform", str(p), "-o", str(out), *([] if frames is None else ["--frames", frames]))
     if total is None:
-        assert r.exit_code == 2 and "--frames 0:1 selects no step of a 6-frame sequence" in r.stderr, r.output
+        assert r.exit_code == 2 and f"--frames 0:1 selects no step of {p}, a 6-frame sequence" in r.stderr, r.output
         assert totals == [] and not out.exists()
         return
     assert r.exit_code == 0, r.output

@@ -37,10 +37,11 @@ class DeformOutput:
     groups: dict = field(default_factory=dict)
 
 
-def step_indices(n_frames: int, frames=None) -> np.ndarray:
+def step_indices(n_frames: int, frames=None, origin=None) -> np.ndarray:
     """Steps `s` (1 <= s < T) selected by a ``(start, stop)`` frame slice.
 
     A step `s` needs frames `s - 1` and `s`; it is selected when `s` lies in the slice.
+    `origin` (the recording's file) is named by the error when it selects none.
     """
     start, stop = (None, None) if frames is None else frames
     idx = np.arange(n_frames)[slice(start, stop)]
@@ -48,7 +49,8 @@ def step_indices(n_frames: int, frames=None) -> np.ndarray:
     if idx.size == 0:
         raise InputError(
             f"--frames {'' if start is None else start}:{'' if stop is None else stop} selects no step "
-            f"of a {n_frames}-frame sequence (a step s needs frames s-1 and s, 1 <= s < {n_frames})"
+            f"of {'a ' if origin is None else str(origin) + ', a '}{n_frames}-frame sequence (a step s needs "
+            f"frames s-1 and s, 1 <= s < {n_frames})"
         )
     return idx.astype(np.int64)
 
@@ -115,7 +117,7 @@ def deform_sequence(seq, *, model="affine", projection="auto", margin=None, thic
     contact_radius = check_thickness(seq.contact_radius if contact_radius is None else contact_radius,
                                      "contact_radius")
     weights = seq.weights if weights is None else weights
-    S_idx = step_indices(seq.n_frames, frames)
+    S_idx = step_indices(seq.n_frames, frames, seq.origin)
     m = required_margin(thickness, margin)
     strategy = make_strategy(model, seq, projection, thickness, S_idx.size, client_model, contact_radius)
     out = _allocate(seq, S_idx, per_vertex)
