@@ -95,6 +95,15 @@ def _obstacles(seq, s0, s1):
     return as_verify_obstacles(seq.obstacles, s0, s1)
 
 
+def _check_something_to_verify(seq) -> None:
+    """InputError for a scene of bare points without obstacles: no pair of it can come
+    close, so "all steps safe" would be said of nothing (SPEC section 2: verify needs
+    edges or faces). Points against obstacles are checked."""
+    if seq.kind == "points" and not seq.obstacles:
+        raise InputError(f"verify needs edges (E, 2) or faces (F, 3), or obstacles, to check; got none "
+                         f"(only {seq.n_vertices} points) in {seq.origin}:/faces")
+
+
 def verify_sequence(seq, *, thickness=None, frames=None, max_pairs=DEFAULT_MAX_PAIRS, progress=None):
     """Verify every step s -> s + 1 of a raw sequence (both frames selected).
 
@@ -113,6 +122,7 @@ def verify_sequence(seq, *, thickness=None, frames=None, max_pairs=DEFAULT_MAX_P
     -------
     VerifyReport
     """
+    _check_something_to_verify(seq)
     h = check_thickness(seq.thickness if thickness is None else thickness)
     sel = _selected(seq.n_frames, frames)
     rep = VerifyReport(seq.origin, "sequence", h, "ccd")
@@ -169,6 +179,7 @@ def verify_result(res, *, thickness=None, frames=None, mode="auto", max_pairs=DE
     if mode not in MODES:
         raise InputError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
     seq = res.sequence
+    _check_something_to_verify(seq)
     h = check_thickness(seq.thickness if thickness is None else thickness)
     m = margin_rule(h)
     sel = _selected(seq.n_frames, frames)
