@@ -399,5 +399,9 @@ def _check_half_space(ob: Obstacle, ds: str):
     if ob.offset is None or not np.isfinite(o):
         raise InputError(f"half-space offset must be a finite scalar (attribute or dataset); got {ob.offset!r} "
                          f"in {ds}/offset")
+    for name, big in (("normal", float(np.max(np.abs(n.astype(np.float64))))), ("offset", abs(o))):
+        if big != 0.0 and not SCALE_MIN <= big <= SCALE_MAX:  # a normal of 1e-300 overflowed the distances
+            raise InputError(f"half-space {name} must have its largest magnitude in the supported range "
+                             f"[{SCALE_MIN:g}, {SCALE_MAX:g}]; got {big:.3g} in {ds}/{name} (rescale it)")
     ob.normal = n.astype(np.float64)
     ob.offset = o

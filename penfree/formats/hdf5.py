@@ -84,16 +84,27 @@ def open_h5(path, mode="r"):
 
 class _Sink:
     """The file HDF5 writes an output through (h5py's ``fileobj`` driver): positional
-    reads and writes on `path`'s descriptor, until a write fails; from then on writes are
-    counted and dropped, and `error` keeps the first failure. HDF5 never sees one."""
+    reads and writes on `path`'s descriptor, until a write fails. From then on writes are
+    not sent to the file and `error` keeps the first failure; HDF5 never sees one.
+
+    After the failure HDF5 goes on (the output is lost anyway) and may read back what it
+    wrote since: its metadata and heaps, which it must find intact or it may crash.
+    Writes of up to `KEPT` bytes are therefore kept in memory and read back from there;
+    larger ones (raw chunks of frames) are dropped and read back as zeros, which HDF5
+    does not interpret.
+    """
+
+    KEPT = 1 << 16
 
     def __init__(self, path):
         self.fd = os.open(path, os.O_RDWR)
         self.pos = 0
         self.error = None
+        self.kept = []  # (offset, bytes) written after the failure, in order
 
     def seek(self, pos, whence=0):
-        self.pos = pos if whence == 0 else self.pos + pos if whence == 1 else os.fstat(self.fd).st_size + pos
+        end = max([os.fstat(self.fd).st_size] + [o + len(b) for o, b in self.kept])
+        self.pos = pos if whence == 0 else self.pos + pos if whence == 1 else end + pos
         return self.pos
 
     def tell(self):
@@ -110,17 +121,26 @@ class _Sink:
                 done += n
             except OSError as exc:
                 self.error = exc
+        if self.error is not None and len(view) <= self.KEPT:
+            self.kept.append((self.pos, bytes(view)))
         self.pos += len(view)
         return len(view)
 
     def readinto(self, buf):
+        view = memoryview(buf).cast("B")
+        size = len(view)
         try:
-            n = os.preadv(self.fd, [memoryview(buf).cast("B")], self.pos)
-        except OSError as exc:  # what a failed write left: HDF5 gets zeros, and the run fails below
+            n = os.preadv(self.fd, [view], self.pos)
+        except OSError as exc:  # what a failed write left: the run fails below
             self.error = self.error or exc
             n = 0
-        self.pos += n
-        return n
+        view[n:] = bytes(size - n)  # past the file's end: zeros, as HDF5's own drivers read them
+        for off, data in self.kept:  # what HDF5 wrote there after the failure, in order
+            lo, hi = max(off, self.pos), min(off + len(data), self.pos + size)
+            if lo < hi:
+                view[lo - self.pos:hi - self.pos] = data[lo - off:hi - off]
+        self.pos += size
+        return size
 
     def read(self, size=-1):
         buf = bytearray(max(size, 0) if size >= 0 else max(os.fstat(self.fd).st_size - self.pos, 0))

@@ -150,9 +150,14 @@ GOOD = np.zeros((3, 4, 3))
     (lambda p: _write(p, positions=GOOD, **{"obstacles/floor/normal": [0.0, 0, 1], "obstacles/floor/offset": 0.0,
                                            "obstacles/floor/shape/profile": np.ones(5)}), InputError,
      "a half-space has no analytic shape; found a shape group in {p}:/obstacles/floor/shape"),
+    (lambda p: _write(p, positions=GOOD, **{"obstacles/floor/normal": [0.0, 0, 1e-300], "obstacles/floor/offset": 0.0}),
+     InputError, "half-space normal must have its largest magnitude in the supported range [1e-100, 1e+100]; got 1e-300 "
+     "in {p}:/obstacles/floor/normal"),
+    (lambda p: _write(p, positions=GOOD, **{"obstacles/floor/normal": [0.0, 0, 1], "obstacles/floor/offset": 1e300}),
+     InputError, "half-space offset must have its largest magnitude in the supported range [1e-100, 1e+100]; got 1e+300"),
 ], ids=["not-hdf5", "missing-positions", "wrong-shape", "one-frame", "inf-frame-1", "index-out-of-range",
         "negative-index", "uint64-index-past-int64", "faces-4-columns", "weights-length", "negative-weights", "format-version-2",
-        "text-thickness", "text-positions", "shape-on-half-space"])
+        "text-thickness", "text-positions", "shape-on-half-space", "tiny-normal", "huge-offset"])
 def test_bad_inputs(tmp_path, build, exc, expect):
     p = str(tmp_path / "bad.h5")
     build(p)
