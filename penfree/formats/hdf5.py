@@ -169,10 +169,9 @@ def new_h5(tmp, output):
     object (it prints them and goes on), so a write that failed there left a truncated
     file to be renamed into place; and once a write has failed, HDF5 crashes (SIGSEGV)
     when the file or an object is closed. Here HDF5 writes through `_Sink`, which keeps
-    the first failure and drops the writes after it, so HDF5 never sees one and closes
-    cleanly. The failure is raised once the file is closed (an error the body met after
-    it, such as HDF5 reading back a dropped block, is its consequence), and
-    `atomic_file` removes the temporary.
+    the first failure and sends nothing more to the file, so HDF5 never sees one and
+    closes cleanly. The failure is raised once the file is closed (an error the body met
+    after it is its consequence), and `atomic_file` removes the temporary.
     """
     sink = _Sink(tmp)
     try:
