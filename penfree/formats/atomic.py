@@ -301,7 +301,12 @@ def _write_failures(path):
     except OSError as exc:
         if exc.errno not in _WRITE_ERRNOS:
             raise
-        raise InputError(f"cannot write output {path}: {_reason(exc)}; nothing was written") from None
+        raise write_error(path, exc) from None
+
+
+def write_error(path, exc: OSError) -> InputError:
+    """The one line of an output `path` that could not be written: nothing of it is left."""
+    return InputError(f"cannot write output {path}: {_reason(exc)}; nothing was written")
 
 
 def _unlink(p):
@@ -385,7 +390,7 @@ def atomic_dir(path, overwrite: bool = False):
                 except OSError as exc:
                     with suppress(OSError):
                         os.rmdir(path)  # our own empty claim
-                    raise InputError(f"cannot write output {path}: {_reason(exc)}; nothing was written") from None
+                    raise write_error(path, exc) from None
                 undo = (lambda: (shutil.rmtree(path, ignore_errors=True), _Phase.committed.remove(path)))
             _Phase.committed.append(path)
             return undo

@@ -32,7 +32,7 @@ from ._json import json_default
 from ..sequence import (OBSTACLE_FORMS, PROFILE_FIELDS, AnalyticShape, Obstacle, Sequence, check_obstacle_name,
                         check_shape)
 from ._registry import register
-from .atomic import atomic_file
+from .atomic import atomic_file, write_error
 from .chunks import read_frames, write_positions
 from .frames import StoredFrames
 
@@ -102,9 +102,12 @@ class _Sink:
         self.error = None
         self.kept = []  # (offset, bytes) written after the failure, in order
 
+    def end(self):
+        """The file's end as HDF5 wrote it: on disk, or beyond it in what was kept."""
+        return max([os.fstat(self.fd).st_size] + [o + len(b) for o, b in self.kept])
+
     def seek(self, pos, whence=0):
-        end = max([os.fstat(self.fd).st_size] + [o + len(b) for o, b in self.kept])
-        self.pos = pos if whence == 0 else self.pos + pos if whence == 1 else end + pos
+        self.pos = pos if whence == 0 else self.pos + pos if whence == 1 else self.end() + pos
         return self.pos
 
     def tell(self):
@@ -142,9 +145,10 @@ class _Sink:
         self.pos += size
         return size
 
-    def read(self, size=-1):
-        buf = bytearray(max(size, 0) if size >= 0 else max(os.fstat(self.fd).st_size - self.pos, 0))
-        return bytes(buf[:self.readinto(buf)])
+    def read(self, size=-1):  # h5py takes an object with `read` for a file; its driver calls `readinto`
+        buf = bytearray(size if size >= 0 else max(self.end() - self.pos, 0))
+        self.readinto(buf)
+        return bytes(buf)
 
     def truncate(self, size=None):
         size = self.pos if size is None else size
@@ -190,9 +194,7 @@ def new_h5(tmp, output):
     finally:
         os.close(sink.fd)
     if sink.error is not None:
-        exc = sink.error
-        reason = os.strerror(exc.errno) if exc.errno else str(exc)
-        raise InputError(f"cannot write output {os.fspath(output)}: {reason}; nothing was written")
+        raise write_error(os.fspath(output), sink.error)
 
 
 def _h5_reason(exc) -> str:
